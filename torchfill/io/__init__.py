@@ -1,0 +1,45 @@
+"""Reading and writing recordings: C3D, TRC, and plain arrays (.npy, .npz, .csv).
+
+``read(path)`` and ``write(seq, path)`` dispatch on the file suffix. Every failure to read or write
+raises :class:`FileFormatError`, whose message is one line naming the file and the problem.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..sequence import MarkerSequence
+
+
+class FileFormatError(ValueError):
+    """A file could not be read or written; the message names the file and the problem."""
+
+
+def read(path, **kwargs) -> MarkerSequence:
+    """Read a recording (.c3d, .trc, .npy, .npz, .csv) into a :class:`MarkerSequence`."""
+    path = Path(path)
+    reader = _pick(path, "read")
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such file")
+    return reader(path, **kwargs)
+
+
+def write(seq: MarkerSequence, path, **kwargs) -> Path:
+    """Write ``seq`` to ``path`` atomically (temporary file, then rename); returns the path."""
+    path = Path(path)
+    writer = _pick(path, "write")
+    writer(seq, path, **kwargs)
+    return path
+
+
+def _pick(path: Path, verb: str):
+    from . import arrays, c3d, trc
+
+    table = {".c3d": c3d, ".trc": trc, ".npy": arrays, ".npz": arrays, ".csv": arrays}
+    module = table.get(path.suffix.lower())
+    if module is None:
+        raise FileFormatError(f"{path}: unsupported file type {path.suffix!r}; "
+                              f"expected one of {', '.join(table)}")
+    return getattr(module, verb)
+
+
+__all__ = ["FileFormatError", "read", "write"]

@@ -1,0 +1,82 @@
+"""The one in-memory form of a recording: :class:`MarkerSequence`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class MarkerSequence:
+    """A marker recording: ``points`` of shape ``(T, J, 3)`` (frames x markers x xyz).
+
+    Missing samples are ``NaN`` in all three coordinates.
+
+    Attributes
+    ----------
+    points : ndarray, float64, shape (T, J, 3)
+    labels : list of str, length J (prefixes such as ``Subject:`` are kept; see :meth:`short_labels`)
+    rate : float
+        Frames per second.
+    units : str
+        Length unit of ``points`` ("mm" or "m", as stored in the file).
+    source : Path or None
+        The file this sequence was read from; writers use it to keep everything else in the file.
+    meta : dict
+        Reader-specific extras (e.g. the C3D point indices the markers came from, first frame).
+    """
+
+    points: np.ndarray
+    labels: list[str]
+    rate: float = 100.0
+    units: str = "mm"
+    source: Path | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.points = np.asarray(self.points, dtype=np.float64)
+        if self.points.ndim != 3 or self.points.shape[2] != 3:
+            raise ValueError(f"points must have shape (T, J, 3), found {self.points.shape}")
+        self.labels = [str(label) for label in self.labels]
+        if len(self.labels) != self.points.shape[1]:
+            raise ValueError(
+                f"expected {self.points.shape[1]} labels (one per marker), found {len(self.labels)}"
+            )
+
+    @property
+    def n_frames(self) -> int:
+        return self.points.shape[0]
+
+    @property
+    def n_markers(self) -> int:
+        return self.points.shape[1]
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Gap mask ``(T, J)``: True where a marker is missing (any coordinate not finite)."""
+        return ~np.isfinite(self.points).all(axis=2)
+
+    def short_labels(self) -> list[str]:
+        """Labels without a ``Subject:`` prefix (CMU and HDM05 share marker names that way)."""
+        return [label.rsplit(":", 1)[-1] for label in self.labels]
+
+    def with_points(self, points: np.ndarray) -> "MarkerSequence":
+        """A copy carrying new points and the same labels, rate, units, source and meta."""
+        return replace(self, points=np.asarray(points, dtype=np.float64), meta=dict(self.meta))
+
+    def select(self, markers) -> "MarkerSequence":
+        """A copy with only the given marker indices (or labels)."""
+        index = [self.labels.index(m) if isinstance(m, str) else int(m) for m in markers]
+        meta = dict(self.meta)
+        if "point_index" in meta:
+            meta["point_index"] = [meta["point_index"][i] for i in index]
+        return replace(self, points=self.points[:, index].copy(),
+                       labels=[self.labels[i] for i in index], meta=meta)
+
+    def __repr__(self) -> str:
+        missing = 100.0 * self.mask.mean() if self.points.size else 0.0
+        name = self.source.name if self.source else "<memory>"
+        return (f"MarkerSequence({name}: {self.n_frames} frames x {self.n_markers} markers, "
+                f"{self.rate:g} Hz, {self.units}, {missing:.1f}% missing)")

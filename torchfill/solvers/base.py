@@ -1,0 +1,226 @@
+"""The solver contract (see DESIGN.md): :class:`Solver`, declared hyperparameters, the registry.
+
+Every filler is a ``torch.nn.Module`` with keyword-only hyperparameters, ``fit(X, mask)``,
+``step()`` (one update of the paper's algorithm), ``forward()`` (the current reconstruction) and
+``history_``. The same loop, stopping rule and history record serve every solver.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from .. import ops
+
+Tensor = torch.Tensor
+
+
+@dataclass(frozen=True)
+class Param:
+    """A declared hyperparameter: default, accepted types and bounds (inclusive unless open)."""
+
+    default: Any
+    types: type | tuple[type, ...] = float
+    low: float | None = None
+    high: float | None = None
+    choices: tuple | None = None
+    allow_none: bool = False
+    low_open: bool = False
+    doc: str = ""
+
+    def check(self, owner: str, name: str, value: Any) -> Any:
+        if value is None and self.allow_none:
+            return None
+        types = self.types if isinstance(self.types, tuple) else (self.types,)
+        if float in types and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if isinstance(value, bool) and bool not in types or not isinstance(value, types):
+            raise ValueError(f"{owner}: {name} expected {self._expected()}, "
+                             f"found {value!r} ({type(value).__name__})")
+        ok = self.choices is None or value in self.choices
+        if self.low is not None:
+            ok = ok and (value > self.low if self.low_open else value >= self.low)
+        if self.high is not None:
+            ok = ok and value <= self.high
+        if isinstance(value, float) and not math.isfinite(value) and self.high is not None:
+            ok = False
+        if not ok:
+            raise ValueError(f"{owner}: {name} expected {self._expected()}, found {value!r}")
+        return value
+
+    def _expected(self) -> str:
+        types = self.types if isinstance(self.types, tuple) else (self.types,)
+        text = " or ".join(t.__name__ for t in types)
+        if self.choices is not None:
+            text += f" in {self.choices}"
+        if self.low is not None:
+            text += f" {'>' if self.low_open else '>='} {self.low}"
+        if self.high is not None:
+            text += f" <= {self.high}"
+        return text + (" or None" if self.allow_none else "")
+
+
+_REGISTRY: dict[str, type["Solver"]] = {}
+
+
+def register(cls: type["Solver"]) -> type["Solver"]:
+    """Class decorator: add a solver to the registry under ``cls.name``."""
+    if not cls.name or cls.name in _REGISTRY:
+        raise ValueError(f"solver name {cls.name!r} is empty or already registered")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def available() -> list[str]:
+    """Registered method names, in registration order."""
+    return list(_REGISTRY)
+
+
+def get_solver(name: str, **params: Any) -> "Solver":
+    """Instantiate the registered solver ``name`` with hyperparameters ``params``."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown method {name!r}; expected one of: {', '.join(_REGISTRY)}")
+    return _REGISTRY[name](**params)
+
+
+class Solver(nn.Module):
+    """Base class of every gap filler.
+
+    Subclasses set ``name``, declare their hyperparameters in ``params`` (merged along the MRO) and
+    implement :meth:`_initialize` (state from the normalized data), :meth:`step` (one update,
+    returning a dict of observed-data diagnostics for ``history_``) and :meth:`_estimate` (the
+    current full estimate, normalized).
+
+    Data handling shared by all: ``fit`` centres each coordinate axis (last mode) on its observed
+    mean and divides by one scalar, the observed standard deviation, so every default is
+    translation- and unit-invariant. ``M_`` holds the normalized data with zeros where missing,
+    ``Omega_`` the observed set (bool, full shape). Missing entries are zeroed before anything else,
+    so a solver never sees values the caller passed at unobserved positions.
+    """
+
+    name: ClassVar[str] = ""
+    iterative: ClassVar[bool] = True
+    params: ClassVar[dict[str, Param]] = {
+        "max_iter": Param(500, int, low=1, doc="iteration cap"),
+        "tol": Param(1e-5, float, low=0.0, doc="stop when the relative change of the iterate is below"),
+        "seed": Param(0, int, doc="seed of the solver's own random generator"),
+        "verbose": Param(False, bool, doc="print one line per iteration"),
+    }
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__()
+        declared = self.declared_params()
+        unknown = set(kwargs) - set(declared)
+        if unknown:
+            raise ValueError(f"{self.name}: unknown hyperparameter(s) {sorted(unknown)}; "
+                             f"expected some of {sorted(declared)}")
+        for key, spec in declared.items():
+            setattr(self, key, spec.check(self.name, key, kwargs.get(key, spec.default)))
+        self.history_: list[dict[str, float]] = []
+        self.n_iter_ = 0
+        self.converged_ = False
+
+    @classmethod
+    def declared_params(cls) -> dict[str, Param]:
+        merged: dict[str, Param] = {}
+        for klass in reversed(cls.__mro__):
+            merged.update(getattr(klass, "params", {}) if issubclass(klass, Solver) else {})
+        return merged
+
+    def get_params(self) -> dict[str, Any]:
+        return {key: getattr(self, key) for key in self.declared_params()}
+
+    # -- data in -------------------------------------------------------------------------------
+    def initialize(self, X: Tensor, mask: Tensor | None = None) -> "Solver":
+        """Take the data and set up the state without iterating (the Lightning runners call this)."""
+        X = torch.as_tensor(X)
+        if X.ndim < 2:
+            raise ValueError(f"{self.name}: expected a tensor with time as its first mode, found shape {tuple(X.shape)}")
+        dtype = X.dtype if X.is_floating_point() else torch.float64
+        X = X.to(dtype)
+        Omega = torch.isfinite(X)
+        if mask is not None:
+            mask = torch.as_tensor(mask, dtype=torch.bool, device=X.device)
+            if mask.shape != X.shape:
+                if mask.shape != X.shape[:mask.ndim]:
+                    raise ValueError(f"{self.name}: mask shape {tuple(mask.shape)} does not match data {tuple(X.shape)}")
+                mask = mask.reshape(mask.shape + (1,) * (X.ndim - mask.ndim)).expand_as(X)
+            Omega = Omega & ~mask
+        if not bool(Omega.any()):
+            raise ValueError(f"{self.name}: no observed entries to fit")
+        zero = torch.zeros((), dtype=dtype, device=X.device)
+        Xo = torch.where(Omega, X, zero)
+        axes = tuple(range(X.ndim - 1))
+        count = Omega.sum(dim=axes).clamp(min=1)
+        self.mu_ = Xo.sum(dim=axes) / count                       # per coordinate (last mode)
+        centred = torch.where(Omega, X - self.mu_, zero)
+        sigma = torch.sqrt((centred ** 2).sum() / Omega.sum().clamp(min=1))
+        self.sigma_ = torch.where(sigma > 0, sigma, torch.ones_like(sigma))
+        self.M_ = centred / self.sigma_
+        self.Omega_ = Omega
+        self.generator_ = torch.Generator(device=X.device).manual_seed(self.seed)
+        self.history_, self.n_iter_, self.converged_ = [], 0, False
+        self._initialize()
+        return self
+
+    def interp_start(self) -> Tensor:
+        """The normalized data with gaps linearly interpolated along time (mode 1)."""
+        shape = self.M_.shape
+        M = self.M_.reshape(shape[0], -1)
+        return ops.interp_linear(M, self.Omega_.reshape(shape[0], -1)).reshape(shape)
+
+    # -- the loop ------------------------------------------------------------------------------
+    def fit(self, X: Tensor, mask: Tensor | None = None) -> "Solver":
+        """Fit on ``X`` (NaN = missing, and/or ``mask`` True = missing); returns ``self``."""
+        self.initialize(X, mask)
+        while not self.converged_ and self.n_iter_ < self.max_iter:
+            self.step_and_record()
+        return self
+
+    def step_and_record(self) -> dict[str, float]:
+        """One :meth:`step`, its diagnostics appended to ``history_``, the stopping rule applied."""
+        info = self.step()
+        self.n_iter_ += 1
+        info = {"iter": self.n_iter_, **{k: float(v) for k, v in info.items()}}
+        self.history_.append(info)
+        self.converged_ = bool(self.should_stop(info))
+        if self.verbose:
+            print(f"[{self.name}] " + "  ".join(f"{k}={v:.4g}" for k, v in info.items()))
+        return info
+
+    def should_stop(self, info: dict[str, float]) -> bool:
+        """Default rule: relative change of the iterate below ``tol`` (observed data only)."""
+        if not self.iterative:
+            return True
+        return info.get("delta", math.inf) < self.tol
+
+    def fit_transform(self, X: Tensor, mask: Tensor | None = None) -> Tensor:
+        """Fit, then return ``X`` with its missing entries filled; observed entries are ``X``'s own."""
+        X = torch.as_tensor(X)
+        self.fit(X, mask)
+        return self.transform(X)
+
+    def transform(self, X: Tensor) -> Tensor:
+        X = torch.as_tensor(X)
+        est = self.forward().to(X.dtype if X.is_floating_point() else torch.float64)
+        return torch.where(self.Omega_, X.to(est.dtype), est)
+
+    def forward(self) -> Tensor:
+        """The current full estimate, in the units of the input."""
+        return self._estimate() * self.sigma_ + self.mu_
+
+    # -- to implement --------------------------------------------------------------------------
+    def _initialize(self) -> None:
+        raise NotImplementedError
+
+    def step(self) -> dict[str, float]:
+        raise NotImplementedError
+
+    def _estimate(self) -> Tensor:
+        raise NotImplementedError
+
+    def extra_repr(self) -> str:
+        return ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
