@@ -2,7 +2,9 @@
 same kind of object it was given, observed samples bit-for-bit unchanged."""
 from __future__ import annotations
 
+import time
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -29,7 +31,7 @@ def default_method() -> str:
 
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         **params):
+         progress: Callable[[dict], None] | None = None, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -42,8 +44,12 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional
         Gaps longer than this many frames are left unfilled (NaN).
+    progress : callable, optional
+        Called with each iteration's diagnostics (a dict from the solver's ``history_``).
     **params
-        Hyperparameters of the method (see ``torchfill methods``).
+        Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
+        methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
+        (``Subject:`` prefixes ignored), arrays must already have ``data``'s markers in order.
 
     Returns
     -------
@@ -52,7 +58,9 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     input bit-for-bit. Markers never observed stay NaN, with an :class:`UnfilledWarning`.
     """
     method = method or default_method()
-    solver = get_solver(method, **params)   # validates the method and hyperparameters first
+    if max_gap is not None and max_gap < 0:
+        raise ValueError(f"max_gap expected >= 0, found {max_gap}")
+    get_solver(method, **{k: v for k, v in params.items() if k != "training"})  # validate early
     points, kind = _as_tensor(data)
     missing = ~torch.isfinite(points).all(dim=2)
     if mask is not None:
@@ -69,16 +77,62 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: {names}",
                       UnfilledWarning, stacklevel=2)
     todo = missing & ~never
+    info = {"method": method, "n_iter": 0, "seconds": 0.0}
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
+        if params.get("training") is not None:
+            params["training"] = _align_training(params["training"], data, keep.tolist(),
+                                                 points.shape[1])
+        solver = get_solver(method, **params)
         Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
-        filled = solver.fit_transform(Xk, mask=missing[:, keep])
+        start = time.perf_counter()
+        filled = _run(solver, Xk, missing[:, keep], progress)
+        info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
         out[:, keep] = part
     if max_gap is not None:
         out = _unfill_long_gaps(out, missing, max_gap)
-    return _as_kind(out, kind, data, method)
+    return _as_kind(out, kind, data, info)
+
+
+def _run(solver, X: torch.Tensor, missing: torch.Tensor, progress) -> torch.Tensor:
+    """The solver's own loop (``fit``), with a progress hook on every iteration."""
+    solver.initialize(X, missing)
+    while not solver.converged_ and solver.n_iter_ < solver.max_iter:
+        record = solver.step_and_record()
+        if progress is not None:
+            progress(record)
+    return solver.transform(X)
+
+
+def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
+    """Training recordings as tensors whose markers match ``data``'s kept markers, in order."""
+    if isinstance(training, (MarkerSequence, np.ndarray, torch.Tensor)):
+        training = [training]
+    labels = data.short_labels() if isinstance(data, MarkerSequence) else None
+    aligned = []
+    for item in training:
+        if isinstance(item, MarkerSequence):
+            if labels is None:
+                raise ValueError("training recordings given as MarkerSequence need labelled data: "
+                                 "pass a MarkerSequence to fill(), or arrays as training")
+            own = {name: i for i, name in enumerate(item.short_labels())}
+            absent = [name for name in (labels[j] for j in keep) if name not in own]
+            if absent:
+                name = item.source.name if item.source else "training recording"
+                raise ValueError(f"{name}: lacks {len(absent)} marker(s) of the recording to fill: "
+                                 f"{', '.join(absent[:8])}{' ...' if len(absent) > 8 else ''}")
+            item = item.points[:, [own[labels[j]] for j in keep]]
+        else:
+            item = np.asarray(item.detach().cpu() if isinstance(item, torch.Tensor) else item,
+                              dtype=np.float64)
+            if item.ndim != 3 or item.shape[1:] != (n_markers, 3):
+                raise ValueError(f"training array expected shape (T, {n_markers}, 3) like the "
+                                 f"recording to fill, found {item.shape}")
+            item = item[:, keep]
+        aligned.append(torch.from_numpy(np.array(item, dtype=np.float64)))
+    return aligned
 
 
 def _as_tensor(data) -> tuple[torch.Tensor, str]:
@@ -102,7 +156,7 @@ def _as_tensor(data) -> tuple[torch.Tensor, str]:
     return X, kind
 
 
-def _as_kind(out: torch.Tensor, kind: str, data, method: str):
+def _as_kind(out: torch.Tensor, kind: str, data, info: dict):
     if kind == "tensor":
         return out
     points = out.cpu().numpy()
@@ -110,13 +164,11 @@ def _as_kind(out: torch.Tensor, kind: str, data, method: str):
         return points
     seq = data.with_points(points)
     seq.meta["filled"] = data.mask & np.isfinite(points).all(axis=2)
-    seq.meta["fill_method"] = method
+    seq.meta["fill_info"] = info
     return seq
 
 
 def _unfill_long_gaps(out: torch.Tensor, missing: torch.Tensor, max_gap: int) -> torch.Tensor:
-    if max_gap < 0:
-        raise ValueError(f"max_gap expected >= 0, found {max_gap}")
     long = [(j, a, b) for j, a, b in gap_runs(missing.cpu().numpy()) if b - a > max_gap]
     for j, a, b in long:
         out[a:b, j] = torch.nan

@@ -5,6 +5,7 @@ raises :class:`FileFormatError`, whose message is one line naming the file and t
 """
 from __future__ import annotations
 
+from importlib import import_module
 from pathlib import Path
 
 from ..sequence import MarkerSequence
@@ -32,14 +33,12 @@ def write(seq: MarkerSequence, path, **kwargs) -> Path:
 
 
 def _pick(path: Path, verb: str):
-    from . import arrays, c3d, trc
-
-    table = {".c3d": c3d, ".trc": trc, ".npy": arrays, ".npz": arrays, ".csv": arrays}
+    table = {".c3d": "c3d", ".trc": "trc", ".npy": "arrays", ".npz": "arrays", ".csv": "arrays"}
     module = table.get(path.suffix.lower())
     if module is None:
         raise FileFormatError(f"{path}: unsupported file type {path.suffix!r}; "
                               f"expected one of {', '.join(table)}")
-    return getattr(module, verb)
+    return getattr(import_module(f".{module}", __name__), verb)
 
 
 __all__ = ["FileFormatError", "read", "write"]
