@@ -8,6 +8,8 @@ from __future__ import annotations
 from importlib import import_module
 from pathlib import Path
 
+import numpy as np
+
 from ..sequence import MarkerSequence
 
 
@@ -25,11 +27,30 @@ def read(path, **kwargs) -> MarkerSequence:
 
 
 def write(seq: MarkerSequence, path, **kwargs) -> Path:
-    """Write ``seq`` to ``path`` atomically (temporary file, then rename); returns the path."""
+    """Write ``seq`` to ``path`` atomically (temporary file, then rename); returns the path.
+
+    ``seq`` may also be an array of shape ``(T, J, 3)`` (labels M1..MJ, 100 Hz, mm). A C3D or TRC
+    written from a sequence read from a file of the same kind keeps that file and changes only the
+    filled samples (see :mod:`torchfill.io.c3d`, :mod:`torchfill.io.trc`).
+    """
     path = Path(path)
     writer = _pick(path, "write")
+    if not isinstance(seq, MarkerSequence):
+        seq = _wrap(seq, path)
     writer(seq, path, **kwargs)
     return path
+
+
+def _wrap(points, path: Path) -> MarkerSequence:
+    """A bare ``(T, J, 3)`` array (NumPy or torch) as a MarkerSequence with default labels."""
+    if hasattr(points, "detach"):
+        points = points.detach().cpu().numpy()
+    try:
+        points = np.asarray(points, dtype=np.float64)
+        return MarkerSequence(points=points,
+                              labels=[f"M{j + 1}" for j in range(points.shape[1])])
+    except (ValueError, TypeError, IndexError) as err:
+        raise FileFormatError(f"{path}: cannot write {type(points).__name__}: {err}") from None
 
 
 def _pick(path: Path, verb: str):

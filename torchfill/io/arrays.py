@@ -1,0 +1,215 @@
+"""Plain arrays: ``.npy``, ``.npz`` and ``.csv``.
+
+* ``.npy``: one float array of shape ``(T, J, 3)`` or ``(T, 3J)`` (columns x1 y1 z1 x2 ...).
+* ``.npz``: key ``points`` (as for .npy), optional ``labels`` (J strings), ``rate`` (Hz) and
+  ``units`` (a string).
+* ``.csv``: numbers, comma- (or semicolon- or tab-) separated, columns x1,y1,z1,x2,...; an optional
+  first row of column names (``LASI_X,LASI_Y,LASI_Z,...``: the marker label is the name without
+  its trailing axis letter; or one name per marker followed by two empty cells).
+
+Missing samples are ``NaN`` (or empty CSV cells); a sample with any missing coordinate is missing.
+``+-inf`` is an error. Rate and units that the format cannot hold come from the ``rate=`` and
+``units=`` arguments (defaults 100 Hz, mm).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from . import FileFormatError
+from ._common import atomic_write, check_writable, default_labels, reject_inf
+from ..sequence import MarkerSequence
+
+_AXIS = re.compile(r"^(?P<name>.*?)[\s_.:\-]*(?P<axis>[xyzXYZ])(?P<num>\d*)$")
+
+
+def _fail(path, problem: str):
+    raise FileFormatError(f"{path}: {problem}")
+
+
+def _as_points(array: np.ndarray, path: Path) -> np.ndarray:
+    """``(T, J, 3)`` float64 from a ``(T, J, 3)`` or ``(T, 3J)`` numeric array."""
+    if array.dtype.kind not in "fiub":
+        _fail(path, f"expected a numeric array, found dtype {array.dtype}")
+    if array.ndim == 2 and array.shape[1] % 3 == 0 and array.shape[1] > 0:
+        array = array.reshape(array.shape[0], array.shape[1] // 3, 3)   # x1 y1 z1 x2 ... (C order)
+    if array.ndim != 3 or array.shape[2] != 3 or array.shape[1] == 0:
+        _fail(path, f"wrong array shape {array.shape}: expected (frames, markers, 3) or "
+                    f"(frames, 3 x markers)")
+    if array.shape[0] == 0:
+        _fail(path, "no frames")
+    points = np.array(array, dtype=np.float64)
+    reject_inf(points, path)
+    return points
+
+
+def _nan_rows(points: np.ndarray) -> np.ndarray:
+    """A sample with any NaN coordinate is missing in all three."""
+    points[~np.isfinite(points).all(axis=2)] = np.nan
+    return points
+
+
+def read(path, *, rate: float | None = None, units: str | None = None,
+         markers_only: bool = True) -> MarkerSequence:
+    """Read ``.npy``, ``.npz`` or ``.csv`` into a :class:`MarkerSequence` (``markers_only`` is
+    accepted for a uniform signature and ignored)."""
+    path = Path(path)
+    if not path.is_file():
+        _fail(path, "no such file")
+    if path.stat().st_size == 0:
+        _fail(path, "empty file")
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        points, labels, meta_rate, meta_units = _read_csv(path)
+    else:
+        points, labels, meta_rate, meta_units = _read_numpy(path, suffix)
+    points = _nan_rows(points)
+    J = points.shape[1]
+    labels = labels or default_labels(J)
+    if len(labels) != J:
+        _fail(path, f"{len(labels)} labels for {J} markers")
+    return MarkerSequence(points=points, labels=labels,
+                          rate=float(rate or meta_rate or 100.0),
+                          units=str(units or meta_units or "mm"), source=path, meta={})
+
+
+def _read_numpy(path: Path, suffix: str):
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        _fail(path, f"not a valid {suffix} file ({_first_line(err)})")
+    if suffix == ".npy":
+        if not isinstance(loaded, np.ndarray):
+            _fail(path, "not a .npy array")
+        return _as_points(loaded, path), None, None, None
+    if not hasattr(loaded, "files"):
+        _fail(path, "not a .npz archive")
+    with loaded:
+        if "points" not in loaded.files:
+            _fail(path, f"no 'points' array (found {', '.join(loaded.files) or 'nothing'})")
+        try:
+            points = _as_points(loaded["points"], path)
+            labels = [str(s) for s in loaded["labels"].reshape(-1)] if "labels" in loaded.files \
+                else None
+            rate = float(loaded["rate"]) if "rate" in loaded.files else None
+            units = str(loaded["units"]) if "units" in loaded.files else None
+        except (ValueError, TypeError) as err:
+            _fail(path, f"bad .npz content ({_first_line(err)})")
+    if rate is not None and not (math.isfinite(rate) and rate > 0):
+        _fail(path, f"rate must be a positive number, found {rate}")
+    return points, labels, rate, units
+
+
+def _first_line(err: Exception) -> str:
+    return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+
+
+def _read_csv(path: Path):
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        _fail(path, "not a text CSV file (binary content)")
+    rows = [r for r in csv.reader(io.StringIO(text), delimiter=_delimiter(text))
+            if any(c.strip() for c in r)]
+    if not rows:
+        _fail(path, "empty file")
+    labels = None
+    if not all(_is_number(c) for c in rows[0]):
+        labels, rows = _csv_labels(rows[0], path), rows[1:]
+    if not rows:
+        _fail(path, "no data rows")
+    width = max(len(r) for r in rows)
+    values = np.full((len(rows), width), np.nan)
+    for i, row in enumerate(rows):
+        for k, cell in enumerate(row):
+            cell = cell.strip()
+            if not cell:
+                continue
+            if not _is_number(cell):
+                _fail(path, f"row {i + 1 + (labels is not None)}, column {k + 1}: {cell!r} is "
+                            f"not a number")
+            values[i, k] = float(cell)
+    if width % 3:
+        _fail(path, f"wrong array shape: {width} columns is not 3 x markers")
+    reject_inf(values, path)
+    if labels is not None and len(labels) != width // 3:
+        _fail(path, f"header names {len(labels)} markers, data has {width // 3}")
+    return values.reshape(len(rows), width // 3, 3), labels, None, None
+
+
+def _delimiter(text: str) -> str:
+    first = text.splitlines()[0] if text else ""
+    return max((",", ";", "\t"), key=first.count) if first else ","
+
+
+def _is_number(cell: str) -> bool:
+    cell = cell.strip()
+    if not cell:
+        return True
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _csv_labels(header: list[str], path: Path) -> list[str]:
+    """Marker labels from a header row: ``NAME_X, NAME_Y, NAME_Z`` or ``NAME, '', ''``."""
+    cells = [c.strip() for c in header]
+    cells += [""] * (-len(cells) % 3)
+    labels = []
+    for j in range(len(cells) // 3):
+        a, b, c = cells[3 * j:3 * j + 3]
+        if a and not b and not c:
+            labels.append(a)
+            continue
+        match = _AXIS.match(a)
+        name = match.group("name") if match else a
+        if not name:
+            name = f"M{match.group('num') or j + 1}" if match else f"M{j + 1}"
+        labels.append(name)
+    return labels
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+
+
+def write(seq: MarkerSequence, path, *, layout: str = "tj3") -> None:
+    """Write ``seq`` as ``.npy`` (``layout="tj3"`` (T, J, 3), or ``"t3j"`` (T, 3J)), ``.npz``
+    (points, labels, rate, units) or ``.csv`` (a header row ``LABEL_x,LABEL_y,LABEL_z,...``, then
+    one row per frame, ``NaN`` for missing, shortest round-trip decimals), atomically."""
+    path = Path(path)
+    check_writable(seq, path)
+    suffix = path.suffix.lower()
+    points = seq.points
+    if suffix == ".npy":
+        if layout not in ("tj3", "t3j"):
+            _fail(path, f"layout must be 'tj3' or 't3j', found {layout!r}")
+        array = points if layout == "tj3" else points.reshape(seq.n_frames, -1)
+        atomic_write(path, lambda handle: np.save(handle, array, allow_pickle=False))
+    elif suffix == ".npz":
+        atomic_write(path, lambda handle: np.savez(
+            handle, points=points, labels=np.array(seq.labels, dtype=str),
+            rate=np.float64(seq.rate), units=np.array(seq.units)))
+    elif suffix == ".csv":
+        header = ",".join(f"{_csv_safe(label)}_{axis}" for label in seq.labels
+                          for axis in "xyz")
+        body = "\n".join(",".join("NaN" if v != v else repr(v) for v in row)
+                         for row in points.reshape(seq.n_frames, -1).tolist())
+        text = header + "\n" + body + "\n"
+        atomic_write(path, lambda handle: handle.write(text.encode("utf-8")))
+    else:
+        _fail(path, f"unsupported array file type {path.suffix!r}")
+
+
+def _csv_safe(label: str) -> str:
+    return label.replace(",", "_").replace("\n", " ").replace('"', "'")
+
+
+__all__ = ["read", "write"]

@@ -1,0 +1,263 @@
+"""TRC files (OpenSim / Motion Analysis track row column): tab-separated text.
+
+Layout::
+
+    PathFileType  4  (X/Y/Z)  name.trc
+    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
+    100  100  238  41  mm  100  1  238
+    Frame#  Time  LASI        RASI        ...
+                  X1  Y1  Z1  X2  Y2  Z2  ...
+    (an optional blank line)
+    1  0.000  x  y  z  x  y  z  ...
+
+Header rows are parsed positionally (the non-empty cells in order), because some files double the
+tabs in those rows (``osim_rajagopal_motion_capture_walk.trc``), which misaligns a cell-by-cell
+key/value parse. A missing sample is an empty cell, a ``NaN`` cell, a row cut short, or an exact
+(0, 0, 0) (a dead marker, as in ``osim_hamner_subject02_running.trc``; ``zeros_missing=False``
+keeps such samples).
+
+Writing a sequence read from a TRC keeps the source's header lines and every untouched cell
+byte-for-byte and changes only the cells of filled samples, formatted with as many decimals as
+the file's own cells. Without a TRC source, a fresh file is written.
+
+References
+----------
+.. [1] OpenSim documentation, *Marker (.trc) Files*,
+   https://opensimconfluence.atlassian.net/wiki/spaces/OpenSim/pages/53089972
+"""
+from __future__ import annotations
+
+import io
+import math
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from . import FileFormatError
+from ._common import atomic_write, check_writable, default_labels, filled_samples, unwritten_edits
+from ..sequence import MarkerSequence
+
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+
+
+def _fail(path, problem: str):
+    raise FileFormatError(f"{path}: {problem}")
+
+
+def _cells(line: str) -> list[str]:
+    return line.rstrip("\r\n").split("\t")
+
+
+def _split_lines(text: str) -> list[str]:
+    """Lines with their line endings kept (so a write-back can reproduce them)."""
+    return text.splitlines(keepends=True)
+
+
+class _Parsed:
+    """A TRC file split into header lines and data lines, plus what the header says."""
+
+    def __init__(self, path: Path, text: str):
+        self.path = path
+        self.lines = _split_lines(text)
+        if not text.strip():
+            _fail(path, "empty file")
+        if len(self.lines) < 5 or not self.lines[0].startswith("PathFileType"):
+            _fail(path, "not a TRC file (first line must start with 'PathFileType')")
+        keys = [c.strip() for c in _cells(self.lines[1]) if c.strip()]
+        values = [c.strip() for c in _cells(self.lines[2]) if c.strip()]
+        self.header = dict(zip(keys, values))
+        names = _cells(self.lines[3])
+        if len(names) < 2 or names[0].strip() != "Frame#":
+            _fail(path, "not a TRC file (line 4 must start with 'Frame#')")
+        self.labels = [c.strip() for c in names[2:] if c.strip()]
+        self.first_data = 5
+        while self.first_data < len(self.lines) and not self.lines[self.first_data].strip():
+            self.first_data += 1
+        self.data_lines = [i for i in range(self.first_data, len(self.lines))
+                           if self.lines[i].strip()]
+
+    def number(self, key: str, default=None):
+        value = self.header.get(key)
+        if value is None:
+            return default
+        try:
+            return float(value)
+        except ValueError:
+            _fail(self.path, f"header {key} is {value!r}, not a number")
+
+    def table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(frame numbers, times, points (T, J, 3)) from the data lines; NaN for missing cells."""
+        J = len(self.labels)
+        T = len(self.data_lines)
+        if T == 0:
+            _fail(self.path, "no data rows")
+        fast = self._fast_table(J)
+        if fast is not None:
+            return fast
+        frames = np.empty(T)
+        times = np.empty(T)
+        values = np.full((T, 3 * J), np.nan)
+        for r, i in enumerate(self.data_lines):
+            cells = _cells(self.lines[i])
+            if len(cells) > 2 + 3 * J and any(c.strip() for c in cells[2 + 3 * J:]):
+                _fail(self.path, f"line {i + 1}: {len(cells) - 2} values for {J} markers")
+            try:
+                frames[r] = _cell(cells[0])
+                times[r] = _cell(cells[1]) if len(cells) > 1 else math.nan
+                row = [_cell(c) for c in cells[2:2 + 3 * J]]
+            except ValueError as err:
+                _fail(self.path, f"line {i + 1}: {err}")
+            values[r, :len(row)] = row
+        return frames, times, values.reshape(T, J, 3)
+
+    def _fast_table(self, J: int):
+        """The common case (every row complete, no empty cells) with NumPy's C parser; None if
+        any row is irregular (then the cell-by-cell parse finds and names the problem)."""
+        text = "\n".join(self.lines[i].rstrip("\t\r\n") for i in self.data_lines)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                table = np.loadtxt(io.StringIO(text), delimiter="\t", ndmin=2)
+        except ValueError:
+            return None
+        if table.shape != (len(self.data_lines), 2 + 3 * J) or np.isinf(table).any():
+            return None
+        return table[:, 0], table[:, 1], table[:, 2:].reshape(-1, J, 3).copy()
+
+
+def _cell(text: str) -> float:
+    text = text.strip()
+    if not text or text.lower() in ("nan", "-nan", "+nan"):
+        return math.nan
+    if not _NUMBER.match(text):
+        if text.lower().lstrip("+-") in ("inf", "infinity"):
+            raise ValueError(f"infinite value {text!r} (missing samples must be empty or NaN)")
+        raise ValueError(f"{text!r} is not a number")
+    return float(text)
+
+
+def _load(path: Path) -> _Parsed:
+    if not path.is_file():
+        _fail(path, "no such file")
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise FileFormatError(f"{path}: cannot read ({err.strerror or err})") from None
+    if b"\x00" in raw[:4096]:
+        _fail(path, "not a TRC file (binary content)")
+    return _Parsed(path, raw.decode("latin-1"))
+
+
+def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> MarkerSequence:
+    """Read a TRC file into a :class:`MarkerSequence`.
+
+    Parameters
+    ----------
+    path : str or Path
+    zeros_missing : bool, default True
+        Treat samples stored as exactly (0, 0, 0) as missing.
+    markers_only : bool
+        Ignored (a TRC holds markers only); accepted so all readers take the same arguments.
+
+    Returns
+    -------
+    MarkerSequence
+        ``rate`` from DataRate, ``units`` from Units; ``meta`` holds ``frame_numbers``, ``time``
+        and ``first_frame``.
+    """
+    path = Path(path)
+    parsed = _load(path)
+    frames, times, points = parsed.table()
+    J = len(parsed.labels)
+    declared = parsed.number("NumMarkers")
+    if declared is not None and int(declared) != J:
+        warnings.warn(f"{path.name}: header says {int(declared)} markers, labels name {J}",
+                      stacklevel=2)
+    if zeros_missing:
+        points[(points == 0).all(axis=2)] = np.nan
+    rate = parsed.number("DataRate") or parsed.number("CameraRate")
+    if not rate and len(times) > 1 and np.isfinite(times[:2]).all() and times[1] > times[0]:
+        rate = 1.0 / (times[1] - times[0])
+    meta = {"frame_numbers": frames.astype(np.int64), "time": times,
+            "first_frame": int(frames[0]) if np.isfinite(frames[0]) else 1}
+    return MarkerSequence(points=points, labels=parsed.labels, rate=float(rate or 100.0),
+                          units=parsed.header.get("Units", "mm"), source=path, meta=meta)
+
+
+def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
+    """Write ``seq`` as a TRC file, atomically.
+
+    When ``seq.source`` is a TRC file with the same frames and markers, its header lines and all
+    untouched cells are kept; only the cells of filled samples (``seq.meta["filled"]``, else the
+    samples missing in the source and finite in ``seq``) change, written with the file's own
+    number of decimals (or ``decimals``). Otherwise a fresh TRC is written (6 decimals by
+    default); missing samples are empty cells.
+    """
+    path = Path(path)
+    check_writable(seq, path)
+    source = Path(seq.source) if seq.source is not None else None
+    if source is not None and source.suffix.lower() == ".trc" and source.is_file():
+        parsed = _load(source)
+        if len(parsed.data_lines) == seq.n_frames and parsed.labels == seq.labels:
+            return _write_back(seq, path, parsed, decimals)
+    text = _fresh_text(seq, path, 6 if decimals is None else decimals)
+    atomic_write(path, lambda handle: handle.write(text.encode("latin-1", "replace")))
+
+
+def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int | None) -> None:
+    _, _, src = parsed.table()
+    src[(src == 0).all(axis=2)] = np.nan
+    filled = filled_samples(seq, np.isfinite(src).all(axis=2), path)
+    edits = unwritten_edits(seq, src, filled)
+    if edits:
+        warnings.warn(f"{path.name}: {edits} sample(s) differ from {parsed.path.name} but were "
+                      "not filled; only filled samples are written back", stacklevel=3)
+    J = seq.n_markers
+    lines = list(parsed.lines)
+    for t in np.flatnonzero(filled.any(axis=1)):
+        i = parsed.data_lines[t]
+        body = lines[i].rstrip("\r\n")
+        ending = lines[i][len(body):]
+        cells = body.split("\t")
+        places = decimals if decimals is not None else _decimals(cells[2:])
+        cells += [""] * (2 + 3 * J - len(cells))
+        for j in np.flatnonzero(filled[t]):
+            for k in range(3):
+                cells[2 + 3 * j + k] = f"{seq.points[t, j, k]:.{places}f}"
+        lines[i] = "\t".join(cells) + ending
+    text = "".join(lines)
+    atomic_write(path, lambda handle: handle.write(text.encode("latin-1")))
+
+
+def _decimals(cells: list[str]) -> int:
+    """Decimals used by a row's numeric cells (the most seen), 6 if none."""
+    places = [len(c.strip().split(".")[1]) for c in cells
+              if "." in c and "e" not in c.lower() and c.strip()]
+    return max(places) if places else 6
+
+
+def _fresh_text(seq: MarkerSequence, path: Path, decimals: int) -> str:
+    T, J = seq.n_frames, seq.n_markers
+    labels = seq.labels or default_labels(J)
+    first = int(seq.meta.get("first_frame", 1) or 1)
+    rate = float(seq.rate)
+    lines = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
+        "OrigDataStartFrame\tOrigNumFrames",
+        f"{rate:g}\t{rate:g}\t{T}\t{J}\t{seq.units}\t{rate:g}\t{first}\t{T}",
+        "Frame#\tTime\t" + "\t".join(f"{label}\t\t" for label in labels).rstrip("\t"),
+        "\t\t" + "\t".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}" for j in range(J)),
+        "",
+    ]
+    fmt = f"{{:.{decimals}f}}"
+    for t in range(T):
+        row = seq.points[t].reshape(-1)
+        cells = ["" if math.isnan(v) else fmt.format(v) for v in row.tolist()]
+        lines.append(f"{first + t}\t{t / rate:.6f}\t" + "\t".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["read", "write"]
