@@ -1,0 +1,113 @@
+"""The command line: every verb has --help, bad input is one line and exit 2, fill writes a file
+whose observed samples are the input's, evaluate prints the metrics."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from torchfill.cli import main
+
+
+def _walk(T=150, J=6, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 3, T)[:, None, None]
+    phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
+    return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
+
+
+@pytest.fixture
+def gappy_npz(tmp_path):
+    X = _walk()
+    X[40:70, 1] = np.nan
+    X[100:110, 3] = np.nan
+    path = tmp_path / "trial.npz"
+    np.savez(path, points=X, labels=np.array([f"M{j}" for j in range(X.shape[1])]), rate=100.0,
+             units="mm")
+    return path, X
+
+
+@pytest.mark.parametrize("verb", ["fill", "evaluate", "info", "methods", "experiment"])
+def test_every_verb_has_help(verb, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([verb, "--help"])
+    assert exit_.value.code == 0
+    assert "usage: torchfill " + verb in capsys.readouterr().out
+
+
+def test_module_entry_point_runs():
+    done = subprocess.run([sys.executable, "-m", "torchfill", "methods"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0
+    assert "linear" in done.stdout.split()
+
+
+def test_fill_writes_and_keeps_observed(gappy_npz, tmp_path, capsys):
+    path, X = gappy_npz
+    out = tmp_path / "filled.npz"
+    assert main(["fill", str(path), "-o", str(out), "-m", "linear", "-q"]) == 0
+    Y = np.load(out)["points"]
+    observed = np.isfinite(X)
+    assert np.array_equal(Y[observed], X[observed])
+    assert np.isfinite(Y).all()
+
+
+def test_fill_max_gap_leaves_long_gap(gappy_npz, tmp_path, capsys):
+    path, X = gappy_npz
+    out = tmp_path / "filled.npz"
+    assert main(["fill", str(path), "-o", str(out), "-m", "linear", "--max-gap", "20", "-q"]) == 0
+    Y = np.load(out)["points"]
+    assert np.isnan(Y[40:70, 1]).all() and np.isfinite(Y[100:110, 3]).all()
+    assert "left unfilled" in capsys.readouterr().err
+
+
+def test_evaluate_json(gappy_npz, capsys):
+    path, _ = gappy_npz
+    code = main(["evaluate", str(path), "-m", "linear,pchip", "--markers", "2", "--gap-length", "20",
+                 "--max-gaps", "2", "--json", "-q"])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [row["method"] for row in report["results"]] == ["linear", "pchip"]
+    assert all(row["rmse_missing"] > 0 for row in report["results"])
+
+
+def test_info_lists_gaps(gappy_npz, capsys):
+    path, _ = gappy_npz
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "2 gaps, longest 30 frames" in out
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["fill", "{missing}"], "no such file"),
+    (["fill", "{bad_suffix}"], "unsupported file type"),
+    (["fill", "{gappy}", "-m", "no_such_method"], "unknown method"),
+    (["fill", "{gappy}", "-m", "linear", "-p", "max_iter=-3"], "max_iter expected"),
+    (["fill", "{gappy}", "-m", "linear", "-p", "oops"], "NAME=VALUE"),
+    (["fill", "{gappy}", "--max-gap", "-1"], "max_gap expected"),
+    (["evaluate", "{gappy}", "--gap-length", "1000"], "gap_length expected"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, needle, gappy_npz, tmp_path, capsys):
+    path, _ = gappy_npz
+    (tmp_path / "x.xyz").write_text("nothing")
+    names = {"missing": tmp_path / "absent.c3d", "bad_suffix": tmp_path / "x.xyz", "gappy": path}
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code = main([a.format(**{k: str(v) for k, v in names.items()}) for a in args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.startswith("torchfill: error:") and len(err.splitlines()) == 1
+    assert needle in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+def test_real_recording_info_and_evaluate(recording, capsys):
+    path = recording("cmu_02_01.c3d")
+    assert main(["info", str(path)]) == 0
+    assert "frames 343, markers 41" in capsys.readouterr().out
+    assert main(["evaluate", str(path), "-m", "linear", "--markers", "5", "--gap-length", "40",
+                 "--max-gaps", "2", "-q", "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["results"][0]
+    assert 0 < row["rmse"] < row["rmse_missing"] < 200  # mm; the all-entries RMSE is diluted
