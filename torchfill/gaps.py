@@ -26,6 +26,8 @@ def multi_gap(T: int, J: int, *, n_markers: int = 20, gap_length: int = 100, max
     each start uniform in the first ``T / 5.1 * 4`` frames (as in the authors' demo) and clipped
     so the gap fits in the recording. Gaps on one marker may overlap."""
     _check(T, J, n_markers, gap_length)
+    if max_gaps < 1:
+        raise ValueError(f"max_gaps expected >= 1, found {max_gaps}")
     rng = np.random.default_rng(seed)
     mask = np.zeros((T, J), dtype=bool)
     last_start = max(1, min(int(T * 4 / 5.1), T - gap_length + 1))
