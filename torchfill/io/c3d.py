@@ -312,7 +312,7 @@ class RawPoints:
 
     @property
     def residual(self) -> np.ndarray:
-        """Residual in file units (low byte x |scale|); -1 where the sample is invalid."""
+        """Residual in file units (low byte x |scale|); -1 where the 4th word is negative."""
         w = np.where(self.word >= 0, self.word, 0).astype(np.int64)
         return np.where(self.word >= 0, (w & 0xFF) * abs(self.layout.scale), -1.0)
 
@@ -538,7 +538,9 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     frames[..., 3] = np.where(valid, 0.0, -1.0)
     analog = np.zeros((0, 1), dtype=np.float32)
     writer.add_frames([(frames[t], analog) for t in range(T)])
-    atomic_write(path, writer.write)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "No analog data found")
+        atomic_write(path, writer.write)
 
 
 __all__ = ["Layout", "RawPoints", "non_markers", "parse", "read", "read_raw", "write"]

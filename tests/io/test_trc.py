@@ -1,0 +1,108 @@
+"""TRC: every shared file reads (doubled header tabs included); a write-back keeps the header and
+every untouched cell; fresh files round-trip."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import torchfill
+
+from conftest import data_files
+from iohelpers import linear_fill, longest_run, synthetic
+
+TRC_FILES = data_files(".trc")
+EXPECTED = {   # frames, markers, rate, first frame (from each file's header)
+    "osim_gait2392_subject01_walk1.trc": (151, 41, 60.0, 1),
+    "osim_hamner_subject02_running.trc": (600, 41, 60.0, 1),
+    "osim_rajagopal_motion_capture_run.trc": (510, 42, 100.0, 23),
+    "osim_rajagopal_motion_capture_walk.trc": (238, 41, 100.0, 1),
+}
+
+
+@pytest.mark.parametrize("path", TRC_FILES, ids=[p.name for p in TRC_FILES])
+def test_every_shared_trc_reads(path):
+    seq = torchfill.read(path)
+    T, J, rate, first = EXPECTED.get(path.name, (seq.n_frames, seq.n_markers, seq.rate,
+                                                 seq.meta["first_frame"]))
+    assert seq.points.shape == (T, J, 3)
+    assert seq.rate == rate and seq.units == "mm" and seq.meta["first_frame"] == first
+    assert len(set(seq.labels)) == J and all(label.strip() == label for label in seq.labels)
+    assert not np.isinf(seq.points).any()
+
+
+def test_doubled_header_tabs_parse_positionally(recording):
+    seq = torchfill.read(recording("osim_rajagopal_motion_capture_walk.trc"))
+    assert (seq.n_frames, seq.n_markers, seq.rate, seq.units) == (238, 41, 100.0, "mm")
+    assert seq.labels[:2] == ["R.Shoulder", "L.Shoulder"]
+    np.testing.assert_allclose(seq.points[0, 0], [-652.630, 1529.542, -94.520])
+
+
+def test_dead_marker_of_zeros_is_missing(recording):
+    seq = torchfill.read(recording("osim_hamner_subject02_running.trc"))
+    dead = seq.mask.all(axis=0)
+    assert [seq.labels[j] for j in np.flatnonzero(dead)] == ["L.Bicep"]
+    kept = torchfill.io.trc.read(recording("osim_hamner_subject02_running.trc"),
+                                 zeros_missing=False)
+    assert not kept.mask.any()
+
+
+@pytest.mark.parametrize("path", TRC_FILES, ids=[p.name for p in TRC_FILES])
+def test_write_back_changes_only_filled_cells(path, tmp_path):
+    seq = torchfill.read(path)
+    observed = ~seq.mask
+    gappy = seq.points.copy()
+    j = int(np.argmax(observed.sum(axis=0)))
+    a, b = longest_run(observed[:, j])
+    gappy[(a + b) // 2 - 10:(a + b) // 2 + 10, j] = np.nan
+    points, filled = linear_fill(gappy, max_gap=60)
+    out_seq = seq.with_points(points)
+    out_seq.meta["filled"] = filled
+    out = tmp_path / path.name
+    torchfill.write(out_seq, out)
+    src_lines = path.read_bytes().split(b"\n")
+    out_lines = out.read_bytes().split(b"\n")
+    assert len(src_lines) == len(out_lines)
+    data_start = len(src_lines) - seq.n_frames - (src_lines[-1] == b"")
+    changed = {i for i, (x, y) in enumerate(zip(src_lines, out_lines)) if x != y}
+    rows = {data_start + t for t in np.flatnonzero(filled.any(axis=1))}
+    assert changed == rows                                 # header and other rows byte-identical
+    for t in np.flatnonzero(filled.any(axis=1))[:5]:       # within a changed row, only filled cells
+        x = src_lines[data_start + t].split(b"\t")
+        y = out_lines[data_start + t].split(b"\t")
+        cells = {2 + 3 * j + k for j in np.flatnonzero(filled[t]) for k in range(3)}
+        assert {i for i in range(len(x)) if x[i] != y[i]} <= cells
+    back = torchfill.read(out)
+    decimals = len(x[2].split(b".")[1])
+    np.testing.assert_allclose(back.points[filled], points[filled], atol=0.51 * 10.0 ** -decimals)
+    np.testing.assert_array_equal(back.points[~filled], seq.points[~filled])
+
+
+def test_fresh_trc_round_trip(tmp_path):
+    seq = synthetic()
+    out = tmp_path / "fresh.trc"
+    torchfill.write(seq, out)
+    back = torchfill.read(out)
+    assert back.labels == seq.labels and back.rate == seq.rate and back.units == "mm"
+    np.testing.assert_array_equal(back.mask, seq.mask)
+    np.testing.assert_allclose(back.points[~seq.mask], seq.points[~seq.mask], atol=5e-7)
+    # writing it again from its own source, unchanged, reproduces the bytes
+    again = tmp_path / "again.trc"
+    torchfill.write(back, again)
+    assert again.read_bytes() == out.read_bytes()
+
+
+def test_trc_filling_a_short_row(tmp_path):
+    """A row cut short (trailing markers missing) is padded when its samples are filled."""
+    seq = synthetic(T=30, J=3, gaps=False)
+    seq.points[12:15, 2] = np.nan
+    out = tmp_path / "short.trc"
+    torchfill.write(seq, out)
+    text = out.read_text().split("\n")
+    text = [line.rstrip("\t") for line in text]          # rows 12-14 now end after marker 2
+    out.write_text("\n".join(text))
+    read = torchfill.read(out)
+    assert read.mask[12:15, 2].all()
+    filled = read.with_points(np.where(read.mask[..., None], 1.5, read.points))
+    filled.meta["filled"] = read.mask
+    torchfill.write(filled, tmp_path / "filled.trc")
+    np.testing.assert_allclose(torchfill.read(tmp_path / "filled.trc").points[12:15, 2], 1.5)
