@@ -1,0 +1,12 @@
+"""One torch thread in these tests: the CI machine is small and shared, and multi-threaded LAPACK on
+tiny matrices under load is far slower than a single thread."""
+import pytest
+import torch
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

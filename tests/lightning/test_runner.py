@@ -1,0 +1,140 @@
+"""The experiment runner: configs, the smoke experiment, resume after an interruption, reports."""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from torchfill.lightning import config as config_mod
+from torchfill.lightning import report, runner
+from torchfill.lightning.config import load_config
+
+REPO = Path(__file__).resolve().parents[2]
+SMOKE = REPO / "experiments" / "smoke.yaml"
+
+
+def rows(out: Path) -> list[dict]:
+    with open(out / "cases.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def write_config(tmp_path: Path, text: str, name: str = "exp.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(f"base: {SMOKE}\n" + text)
+    return path
+
+
+@pytest.fixture
+def smoke_data(data_dir, recording, monkeypatch):
+    recording("hdm05_dg_06-03_03_120.c3d")
+    monkeypatch.setenv("TORCHFILL_DATA", str(data_dir))
+    return data_dir
+
+
+def test_smoke_experiment_end_to_end(smoke_data, tmp_path):
+    out = runner.run_experiment(SMOKE, output=tmp_path / "smoke")
+    got = rows(out)
+    assert [r["method"] for r in got] == ["linear", "pchip"]
+    assert all(r["status"] == "ok" for r in got)
+    for r in got:
+        # 1-3 gaps of 40 frames (1/3 s at 120 Hz) on 5 of 41 markers: interpolation errs by
+        # centimetres inside the gaps, never by metres, and never exactly 0
+        assert 1.0 < float(r["rmse_missing"]) < 300.0
+        assert float(r["rmse"]) < float(r["rmse_missing"])       # observed entries count as 0
+        assert int(r["J"]) == 41 and int(r["T"]) == 202
+    table = (out / "table.md").read_text()
+    assert "torchfill experiment experiments/smoke.yaml" in table
+    best = min(got, key=lambda r: float(r["rmse"]))
+    assert f"**{float(best['rmse']):.2f} ± 0.00**" in table
+    assert (out / "trajectories.png").stat().st_size > 1000
+
+
+def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, monkeypatch):
+    out = tmp_path / "smoke"
+    real = runner.run_case
+    calls = []
+
+    def interrupted(config_path, case, runs_dir, **kw):
+        calls.append(case.method.label)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(config_path, case, runs_dir, **kw)
+
+    monkeypatch.setattr(runner, "run_case", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        runner.run_experiment(SMOKE, output=out)
+    first = rows(out)
+    assert [r["method"] for r in first] == ["linear"]
+    with open(out / "cases.csv", "a") as handle:        # a torn line, as if killed mid-write
+        handle.write("hdm05_dg_06-03_03_120.c3d,5,4")
+
+    calls.clear()
+    monkeypatch.setattr(runner, "run_case", lambda *a, **kw: calls.append(a[1].method.label) or real(*a, **kw))
+    runner.run_experiment(SMOKE, output=out, resume=True)
+    assert calls == ["pchip"]
+    final = rows(out)
+    assert [r["method"] for r in final] == ["linear", "pchip"]
+    assert final[0] == first[0]                          # the finished case was kept, not redone
+
+    calls.clear()
+    runner.run_experiment(SMOKE, output=out, resume=True)
+    assert calls == [] and len(rows(out)) == 2
+
+
+def test_limit_and_unregistered_methods(smoke_data, tmp_path, capsys):
+    path = write_config(tmp_path, "methods: {linear: {}, not_a_method_yet: {max_iter: 3}}\n")
+    out = runner.run_experiment(path, output=tmp_path / "o", limit=1)
+    assert "'not_a_method_yet' (not_a_method_yet) is not registered; skipped" in capsys.readouterr().out
+    assert [r["method"] for r in rows(out)] == ["linear"]
+    assert "not_a_method_yet" in (out / "table.md").read_text()
+
+
+def test_same_solver_twice_under_two_labels(smoke_data, tmp_path):
+    path = write_config(tmp_path, "methods: {linear: ~, pchip: ~, a: {method: linear}, b: {method: spline}}\n")
+    got = rows(runner.run_experiment(path, output=tmp_path / "o"))
+    assert [(r["method"], r["solver"]) for r in got] == [("a", "linear"), ("b", "spline")]
+
+
+@pytest.mark.parametrize("text, match", [
+    ("protocol: nope\n", "unknown protocol 'nope'"),
+    ("recordings: [missing_file.c3d]\n", "recording missing_file.c3d not found"),
+    ("colour: red\n", "unknown key"),
+    ("methods: {linear: {max_iter: -1}}\n", "methods.linear"),
+    ("grid: {gap_length: [100000]}\n", "gap_length"),
+    ("metrics: [rmse, accuracy]\n", "unknown metric"),
+])
+def test_config_errors_are_one_line_value_errors(smoke_data, tmp_path, text, match):
+    path = write_config(tmp_path, text, name="broken.yaml")
+    with pytest.raises(ValueError, match=match) as err:
+        runner.run_experiment(path, output=tmp_path / "o")
+    assert str(err.value).startswith("broken.yaml: ") and "\n" not in str(err.value)
+
+
+def test_main_reports_errors_with_status_2(tmp_path, capsys):
+    assert runner.main([str(tmp_path / "absent.yaml")]) == 2
+    assert "absent.yaml: no such config file" in capsys.readouterr().err
+
+
+def test_base_config_deep_merge(tmp_path):
+    (tmp_path / "base.yaml").write_text(
+        "recordings: [a.c3d]\nprotocol: multi_gap\ngrid: {n_markers: [5], gap_length: [40]}\n"
+        "methods: {linear: {}}\nseeds: [0, 1]\n")
+    (tmp_path / "child.yaml").write_text("base: base.yaml\ngrid: {gap_length: [10, 20]}\n")
+    cfg = load_config(tmp_path / "child.yaml")
+    assert cfg.name == "child" and cfg.grid == {"n_markers": [5], "gap_length": [10, 20]}
+    assert len(cfg.cases()) == 1 * 2 * 2 * 1
+    assert config_mod.deep_merge({"a": {"b": 1, "c": 2}}, {"a": {"c": 3}}) == {"a": {"b": 1, "c": 3}}
+    assert config_mod.deep_merge({"a": {"b": 1, "c": 2}}, {"a": {"c": None}}) == {"a": {"b": 1}}
+
+
+def test_table_is_mean_std_over_seeds_with_best_in_bold():
+    data = [{"recording": "r", "gap_length": "50", "seed": str(s), "method": m, "rmse": str(v),
+             "status": "ok"} for m, vals in {"a": [1.0, 3.0], "b": [1.5, 1.5]}.items()
+            for s, v in enumerate(vals)]
+    data.append({"recording": "r", "gap_length": "50", "seed": "2", "method": "a", "rmse": "99",
+                 "status": "error: boom"})
+    text = report.table_markdown(data, ["recording", "gap_length"], "method", "rmse", ["a", "b"])
+    assert f"| r | 50 | 2.00 ± {math.sqrt(2):.2f} | **1.50 ± 0.00** |" in text

@@ -1,0 +1,156 @@
+"""PNG plots of an experiment (matplotlib, Agg, small files).
+
+* ``error_by_<key>.png``: per method, the table metric against the gap length (or another grid key);
+* ``convergence.png``: the showcase case's error against the truth (evaluation only) and the
+  observed-data diagnostics per iteration, as in the Tucker paper's Fig. 4-5;
+* ``trajectories.png``: recovered vs true trajectories of a few gap-bearing markers, the gaps
+  shaded, as in the Tucker paper's Fig. 6.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .report import _num, _ok, _sort_key
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def write_plots(cfg: Config, rows: list[dict], out_dir: Path, runs_dir: Path, *, order: list[str],
+                metric: str) -> list[Path]:
+    """Every plot that the rows and the showcase arrays allow; returns the files written."""
+    out = []
+    for fn in (_error_by, _convergence, _trajectories):
+        path = fn(cfg, rows, out_dir, runs_dir, order, metric)
+        if path is not None:
+            out.append(path)
+    return out
+
+
+def _x_key(cfg: Config) -> str | None:
+    key = cfg.plots.get("x")
+    if key:
+        return key
+    if len(cfg.grid.get("gap_length", [])) > 1:
+        return "gap_length"
+    return next((k for k, v in cfg.grid.items() if len(v) > 1), None)
+
+
+def _error_by(cfg, rows, out_dir, runs_dir, order, metric):
+    x = _x_key(cfg)
+    ok = _ok(rows)
+    if x is None or not ok:
+        return None
+    plt = _plt()
+    recs = [r for r in cfg.recordings if any(row["recording"] == r for row in ok)]
+    fig, axes = plt.subplots(1, len(recs), figsize=(min(4.2 * len(recs), 12), 3.4), squeeze=False,
+                             sharey=False)
+    for ax, rec in zip(axes[0], recs):
+        for method in order:
+            sel = [r for r in ok if r["recording"] == rec and r["method"] == method]
+            xs = sorted({r[x] for r in sel}, key=_sort_key)
+            if not xs:
+                continue
+            vals = [np.array([_num(r[metric]) for r in sel if r[x] == v]) for v in xs]
+            ax.errorbar([float(v) for v in xs], [v.mean() for v in vals],
+                        yerr=[v.std(ddof=1) if len(v) > 1 else 0 for v in vals], marker="o",
+                        ms=3, capsize=2, label=method)
+        ax.set_title(Path(rec).stem, fontsize=9)
+        ax.set_xlabel(x)
+        ax.set_ylabel(metric)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path = out_dir / f"error_by_{x}.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _showcase(runs_dir: Path, order: list[str]) -> list[dict]:
+    found = []
+    for method in order:
+        path = runs_dir / "showcase" / f"{method}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                found.append({k: z[k] for k in z.files})
+    return found
+
+
+def _convergence(cfg, rows, out_dir, runs_dir, order, metric):
+    data = [d for d in _showcase(runs_dir, order) if len(d["curve"]) > 1]
+    if not data:
+        return None
+    plt = _plt()
+    obs_keys = [k for k in ("objective", "delta") if any(k in list(d["history_keys"]) for d in data)]
+    fig, axes = plt.subplots(1, 1 + len(obs_keys), figsize=(4.2 * (1 + len(obs_keys)), 3.4),
+                             squeeze=False)
+    for d in data:
+        ck = list(d["curve_keys"])
+        axes[0][0].plot(d["curve"][:, ck.index("iter")], d["curve"][:, ck.index("rmse")],
+                        label=str(d["method"]))
+        hk = list(d["history_keys"])
+        for ax, key in zip(axes[0][1:], obs_keys):
+            if key in hk:
+                ax.plot(d["history"][:, hk.index("iter")], d["history"][:, hk.index(key)],
+                        label=str(d["method"]))
+    axes[0][0].set_title("RMSE vs truth (evaluation only)", fontsize=9)
+    axes[0][0].set_ylabel("rmse")
+    for ax, key in zip(axes[0][1:], obs_keys):
+        ax.set_title(f"{key} (observed data)", fontsize=9)
+        ax.set_yscale("log")
+    for ax in axes[0]:
+        ax.set_xlabel("iteration")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path = out_dir / "convergence.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _trajectories(cfg, rows, out_dir, runs_dir, order, metric, n_markers: int = 3):
+    from ..metrics import gap_runs
+
+    data = _showcase(runs_dir, order)
+    if not data:
+        return None
+    plt = _plt()
+    truth, mask, labels = data[0]["truth"], data[0]["mask"].astype(bool), data[0]["labels"]
+    rate = float(data[0]["rate"])
+    gapped = np.argsort(-mask.sum(axis=0))[:n_markers]
+    gapped = [j for j in gapped if mask[:, j].any()]
+    if not gapped:
+        return None
+    t = np.arange(truth.shape[0]) / rate
+    fig, axes = plt.subplots(len(gapped), 1, figsize=(8, 2.2 * len(gapped)), squeeze=False,
+                             sharex=True)
+    runs = gap_runs(mask)
+    for ax, j in zip(axes[:, 0], gapped):
+        c = int(np.argmax(truth[mask[:, j], j].std(axis=0)))      # the coordinate that moves most
+        for _, a, b in [r for r in runs if r[0] == j]:
+            ax.axvspan(t[a], t[b - 1], color="0.85", lw=0)
+        ax.plot(t, truth[:, j, c], color="k", lw=1.6, label="truth")
+        for d in data:
+            filled = d["filled"][:, j, c].copy()
+            filled[~mask[:, j]] = np.nan
+            ax.plot(t, filled, lw=1.1, label=str(d["method"]))
+        ax.set_ylabel(f"{labels[j]} {'xyz'[c]}", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=min(4, len(data) + 1))
+    axes[-1, 0].set_xlabel("time (s); gaps shaded")
+    fig.tight_layout()
+    path = out_dir / "trajectories.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

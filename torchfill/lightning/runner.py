@@ -1,0 +1,314 @@
+"""Run an experiment config end to end: every case under a Lightning Trainer, results as they finish.
+
+``run_experiment("experiments/tucker_table2.yaml")`` (or ``torchfill experiment CONFIG``, or
+``python -m torchfill.lightning.runner CONFIG``) expands the config into cases (recording x grid point
+x seed x method), runs each (in parallel over local processes with ``workers > 1``), appends each
+finished case to ``cases.csv`` at once (so ``resume=True`` skips finished cases after an
+interruption), then writes ``table.md`` and the PNG plots. Per-iteration logs go under
+``experiments/runs/<name>/`` (not committed); the small results under ``experiments/results/<name>/``.
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import csv
+import datetime as _dt
+import functools
+import multiprocessing
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import REPO_ROOT, Case, Config, load_config
+
+SCORE_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
+TAIL = ["solver", *SCORE_METRICS, "n_iter", "converged", "stop", "solve_s", "wall_s", "T", "J",
+        "status"]
+
+
+# -- one case (runs in a worker process, or in-process with workers=1) ----------------------------
+@functools.lru_cache(maxsize=4)
+def _config(path: str) -> Config:
+    return load_config(path)
+
+
+def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = False,
+             progress: bool = False) -> dict[str, Any]:
+    """Run one case; returns its ``cases.csv`` row (``status`` says "ok" or the error)."""
+    from ..solvers import get_solver
+    from .callbacks import Convergence, Evaluation, HistoryLogger
+    from .data import CaseDataModule, align_training, load_recording, make_mask
+    from .module import fit
+
+    import torch
+
+    cfg = _config(config_path)
+    row = _key_row(cfg, case)
+    start = time.perf_counter()
+    try:
+        rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
+        mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
+        params = dict(case.method.params)
+        if cfg.training:
+            params["training"] = [align_training(cfg.recording_path(name), rec.labels)
+                                  for name in cfg.training]
+        solver = get_solver(case.method.solver, **params)
+        dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
+                            dtype=getattr(torch, cfg.dtype), device=cfg.device)
+        evaluation = Evaluation(every=1 if showcase else 0)
+        stop = Convergence()
+        callbacks = [stop, HistoryLogger(), evaluation]
+        logger = False
+        if cfg.log:
+            from pytorch_lightning.loggers import CSVLogger
+            logger = [CSVLogger(str(Path(runs_dir) / "logs"), name=case.slug, version="")]
+            try:
+                from pytorch_lightning.loggers import TensorBoardLogger
+                import tensorboard  # noqa: F401  (optional)
+                logger.append(TensorBoardLogger(str(Path(runs_dir) / "tb"), name=case.slug, version=""))
+            except ImportError:
+                pass
+        accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
+        module = fit(solver, dm, callbacks=callbacks, logger=logger, progress=progress,
+                     accelerator=accelerator)
+        row.update(solver=case.method.solver, **{k: evaluation.final.get(k, "") for k in SCORE_METRICS},
+                   n_iter=solver.n_iter_, converged=solver.converged_, stop=stop.reason,
+                   solve_s=round(module.solve_seconds, 4), T=rec.shape[0], J=rec.shape[1],
+                   status="ok")
+        if showcase:
+            _save_showcase(Path(runs_dir) / "showcase" / f"{case.method.label}.npz", case, rec,
+                           mask, evaluation, solver.history_)
+    except Exception as err:  # a failing method must not stop the grid; its row says why
+        row.update(solver=case.method.solver, status=f"error: {type(err).__name__}: "
+                   + " ".join(str(err).split())[:300])
+    row["wall_s"] = round(time.perf_counter() - start, 4)
+    return row
+
+
+def _save_showcase(path: Path, case: Case, rec, mask, evaluation, history) -> None:
+    """The showcase case's arrays for the convergence and trajectory plots (evaluation only)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    keys = sorted({k for h in history for k in h})
+    hist = np.array([[h.get(k, np.nan) for k in keys] for h in history], dtype=float)
+    curve_keys = sorted({k for c in evaluation.curve for k in c})
+    curve = np.array([[c[k] for k in curve_keys] for c in evaluation.curve], dtype=float)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, filled=evaluation.filled, truth=rec.truth, mask=mask,
+                        labels=np.array(rec.labels), rate=rec.rate, history=hist,
+                        history_keys=np.array(keys), curve=curve, curve_keys=np.array(curve_keys),
+                        method=case.method.label)
+    os.replace(tmp, path)
+
+
+def _key_row(cfg: Config, case: Case) -> dict[str, Any]:
+    return {"recording": case.recording, **dict(case.point), "seed": case.seed,
+            "method": case.method.label}
+
+
+def _init_worker() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+# -- the experiment -------------------------------------------------------------------------------
+def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
+                   output=None) -> Path:
+    """Run every case of ``config_path``; returns the output folder.
+
+    Parameters
+    ----------
+    config_path : path to the YAML config.
+    resume : keep the finished cases of an earlier ``cases.csv`` and run only the others.
+    workers : number of local processes (each with one torch thread); 1 runs in this process.
+    limit : run at most this many cases (the first ones, in config order).
+    output : folder for the results (default ``experiments/results/<name>``); per-iteration logs go
+        to ``experiments/runs/<name>`` (or ``<output>/runs`` when ``output`` is given).
+    """
+    from ..solvers import available, get_solver
+
+    cfg = load_config(config_path)
+    if workers < 1:
+        raise ValueError(f"{cfg.path.name}: workers expected >= 1, found {workers}")
+    out_dir = Path(output) if output is not None else REPO_ROOT / "experiments" / "results" / cfg.name
+    runs_dir = out_dir / "runs" if output is not None else REPO_ROOT / "experiments" / "runs" / cfg.name
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    methods, skipped = [], []
+    for m in cfg.methods:
+        if m.solver not in available():
+            skipped.append(m.label)
+            print(f"{cfg.name}: method {m.label!r} ({m.solver}) is not registered; skipped", flush=True)
+            continue
+        try:
+            get_solver(m.solver, **m.params)
+        except ValueError as err:
+            raise ValueError(f"{cfg.path.name}: methods.{m.label}: {err}") from None
+        methods.append(m)
+    notes = _check_recordings(cfg)
+    for note in notes:
+        print(note, flush=True)
+
+    cases = cfg.cases(methods)
+    if limit is not None:
+        cases = cases[:max(0, int(limit))]
+    columns = ["recording", *cfg.grid, "seed", "method", *TAIL]
+    csv_path = out_dir / "cases.csv"
+    done = _read_done(csv_path, columns, cfg) if resume else {}
+    if not resume and csv_path.exists():
+        csv_path.unlink()
+    _rewrite(csv_path, columns, list(done.values()))
+    todo = [c for c in cases if c.key not in done]
+    showcase = _showcase_key(cfg)
+    if resume and done:
+        print(f"{cfg.name}: resuming, {len(cases) - len(todo)} of {len(cases)} cases already done",
+              flush=True)
+
+    progress = workers == 1 and sys.stdout.isatty()
+    start = time.perf_counter()
+    with open(csv_path, "a", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=columns)
+
+        def record(i: int, row: dict) -> None:
+            writer.writerow(row)
+            handle.flush()
+            os.fsync(handle.fileno())
+            metric = cfg.table["metric"]
+            result = f"{metric}={float(row[metric]):.4g}" if row["status"] == "ok" else row["status"]
+            print(f"[{i}/{len(todo)}] {row['recording']} "
+                  + " ".join(f"{k}={row[k]}" for k in cfg.grid)
+                  + f" seed={row['seed']} {row['method']}: {result}, {row.get('n_iter', '')} it, "
+                  f"{row['wall_s']:.2f} s", flush=True)
+
+        args = [(str(cfg.path), c, str(runs_dir)) for c in todo]
+        show = [_is_showcase(c, showcase) for c in todo]
+        if workers == 1:
+            for i, (a, s) in enumerate(zip(args, show), 1):
+                record(i, run_case(*a, showcase=s, progress=progress))
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as pool:
+                futures = [pool.submit(run_case, *a, showcase=s) for a, s in zip(args, show)]
+                try:
+                    for i, fut in enumerate(cf.as_completed(futures), 1):
+                        record(i, fut.result())
+                except BaseException:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
+    elapsed = time.perf_counter() - start
+    print(f"{cfg.name}: {len(todo)} case(s) in {elapsed:.1f} s with {workers} worker(s)", flush=True)
+
+    from . import report
+
+    rows = _read_rows(csv_path)
+    report.write_report(cfg, rows, out_dir, runs_dir, notes=notes, skipped=skipped,
+                        command=_command(cfg, workers))
+    return out_dir
+
+
+def _check_recordings(cfg: Config) -> list[str]:
+    """Load every recording once (errors name the config), check each grid point fits it."""
+    from .data import load_recording, make_mask
+
+    notes = []
+    for name in cfg.recordings + cfg.training:
+        path = cfg.recording_path(name)
+        if not path.is_file():
+            raise ValueError(f"{cfg.path.name}: recording {name} not found in {cfg.data_dir}")
+    for name in cfg.recordings:
+        try:
+            rec = load_recording(cfg.recording_path(name), cfg.frames)
+        except ValueError as err:
+            raise ValueError(f"{cfg.path.name}: {err}") from None
+        notes.append(rec.note())
+        for point in cfg.points():
+            try:
+                make_mask(cfg.protocol, rec.shape, dict(point), cfg.seeds[0])
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"{cfg.path.name}: {cfg.protocol} {dict(point)} on {name}: "
+                                 f"{' '.join(str(err).split())}") from None
+    return notes
+
+
+def _showcase_key(cfg: Config) -> tuple:
+    """The (recording, point, seed) whose fills and convergence curves are plotted."""
+    sc = cfg.showcase
+    recording = sc.get("recording", cfg.recordings[0])
+    point = cfg.points()[0]
+    point = tuple((k, sc.get(k, v)) for k, v in point)
+    return recording, point, sc.get("seed", cfg.seeds[0])
+
+
+def _is_showcase(case: Case, key: tuple) -> bool:
+    return (case.recording, case.point, case.seed) == key
+
+
+def _read_rows(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        n = len(reader.fieldnames or [])
+        return [r for r in reader if None not in r and None not in r.values() and len(r) == n]
+
+
+def _read_done(path: Path, columns: list[str], cfg: Config) -> dict[tuple, dict]:
+    """Finished rows (status ok) of an earlier run, by case key; a torn last line is dropped."""
+    if not path.exists():
+        return {}
+    with open(path, newline="") as handle:
+        header = next(csv.reader(handle), None)
+    if header != columns:
+        raise ValueError(f"{cfg.path.name}: {path} has columns {header}, expected {columns}; "
+                         "run without --resume to start over")
+    done = {}
+    for row in _read_rows(path):
+        if row["status"] == "ok":
+            key = (row["recording"], *(row[k] for k in cfg.grid), row["seed"], row["method"])
+            done[key] = row
+    return done
+
+
+def _rewrite(path: Path, columns: list[str], rows: list[dict]) -> None:
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
+
+
+def _command(cfg: Config, workers: int) -> str:
+    try:
+        rel = cfg.path.relative_to(REPO_ROOT)
+    except ValueError:
+        rel = cfg.path
+    return f"torchfill experiment {rel}" + (f" --workers {workers}" if workers > 1 else "")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m torchfill.lightning.runner",
+                                     description="Run an experiment config (YAML).")
+    parser.add_argument("config")
+    parser.add_argument("--resume", action="store_true", help="skip cases already in cases.csv")
+    parser.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
+    parser.add_argument("--limit", type=int, default=None, help="run at most K cases")
+    parser.add_argument("--output", default=None, help="results folder")
+    args = parser.parse_args(argv)
+    try:
+        out = run_experiment(args.config, resume=args.resume, workers=args.workers,
+                             limit=args.limit, output=args.output)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
