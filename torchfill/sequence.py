@@ -72,6 +72,8 @@ class MarkerSequence:
         meta = dict(self.meta)
         if "point_index" in meta:
             meta["point_index"] = [meta["point_index"][i] for i in index]
+        if meta.get("filled") is not None:          # (T, J) mask of filled samples, per marker
+            meta["filled"] = np.asarray(meta["filled"])[:, index]
         return replace(self, points=self.points[:, index].copy(),
                        labels=[self.labels[i] for i in index], meta=meta)
 

@@ -142,8 +142,7 @@ def _check_write_back(source, out, seq, filled):
     lay = tc3d.parse(source.read_bytes(), source)
     allowed = np.zeros(a.shape, bool)
     start, stop = _sample_spans(lay, filled, seq.meta["point_index"])
-    for s, e in zip(start, stop):
-        allowed[s:e] = True
+    allowed[(start[:, None] + np.arange(4 * lay.word_size)).reshape(-1)] = True
     assert not (a != b)[~allowed].any(), "bytes outside the filled samples changed"
     raw = tc3d.read_raw(out)
     cols = np.asarray(seq.meta["point_index"])
@@ -289,55 +288,80 @@ def test_dec_reals_round_trip():
     np.testing.assert_array_equal(ref[:-1].astype(np.float64), back[:-1])
 
 
-def _to_mips(buf: bytes) -> bytes:
-    """Convert an Intel float C3D (as c3d.Writer makes) to MIPS: swap every multi-byte value."""
+def _convert(buf: bytes, processor: str) -> bytes:
+    """Convert an Intel float C3D (as c3d.Writer makes) to MIPS (big-endian: swap every word) or
+    DEC (integers unchanged, reals re-encoded as DEC F-floating)."""
     lay = tc3d.parse(buf, "intel.c3d")
     out = bytearray(buf)
-    swap16 = lambda a, n: out.__setitem__(slice(a, a + 2 * n), np.frombuffer(  # noqa: E731
-        buf, "<u2", n, a).astype(">u2").tobytes())
-    swap16(0, 1)
-    out[0:2] = buf[0:2]                                    # word 1 is two bytes, not a number
-    swap16(2, 5)
-    out[12:16] = np.frombuffer(buf, "<f4", 1, 12).astype(">f4").tobytes()
-    swap16(16, 2)
-    out[20:24] = np.frombuffer(buf, "<f4", 1, 20).astype(">f4").tobytes()
+
+    def real(at, n):
+        values = np.frombuffer(buf, "<f4", n, at)
+        out[at:at + 4 * n] = (values.astype(">f4").tobytes() if processor == "mips"
+                              else tc3d._encode_dec(values).astype("<u4").tobytes())
+
+    def int16(at, n):
+        if processor == "mips":
+            out[at:at + 2 * n] = np.frombuffer(buf, "<u2", n, at).astype(">u2").tobytes()
+
+    int16(2, 5)
+    real(12, 1)
+    int16(16, 2)
+    real(20, 1)
     start = (buf[0] - 1) * 512
-    out[start + 3] = 86
+    out[start + 3] = {"mips": 86, "dec": 85}[processor]
     pos = start + 4
     while True:                                            # record headers: offset words
         n = abs(tc3d._s8(buf[pos]))
         if n == 0:
             break
         off = pos + 2 + n
+        int16(off, 1)
         step = struct.unpack("<h", buf[off:off + 2])[0]
-        out[off:off + 2] = struct.pack(">h", step)
         if step == 0:
             break
         pos = off + step
     for group in lay.params.values():
         for p in group.values():
-            if p.type in (2, 4):
-                code = {2: "u2", 4: "f4"}[p.type]
-                out[p.offset:p.offset + len(p.data)] = np.frombuffer(
-                    p.data, "<" + code).astype(">" + code).tobytes()
-    n = lay.n_frames * lay.frame_words
-    out[lay.data_offset:lay.data_offset + 4 * n] = np.frombuffer(
-        buf, "<f4", n, lay.data_offset).astype(">f4").tobytes()
+            if p.type == 2:
+                int16(p.offset, len(p.data) // 2)
+            elif p.type == 4:
+                real(p.offset, len(p.data) // 4)
+    real(lay.data_offset, lay.n_frames * lay.frame_words)
     return bytes(out)
 
 
-def test_mips_big_endian_read_and_write_back(tmp_path):
+@pytest.mark.parametrize("processor", ["mips", "dec"])
+def test_mips_and_dec_float_read_and_write_back(processor, tmp_path):
     seq = synthetic()
     intel = tmp_path / "intel.c3d"
     torchfill.write(seq, intel)
-    mips = tmp_path / "mips.c3d"
-    mips.write_bytes(_to_mips(intel.read_bytes()))
-    a, b = torchfill.read(intel), torchfill.read(mips)
-    assert b.meta["c3d"]["processor"] == "mips" and b.rate == a.rate and b.labels == a.labels
+    other = tmp_path / f"{processor}.c3d"
+    other.write_bytes(_convert(intel.read_bytes(), processor))
+    a, b = torchfill.read(intel), torchfill.read(other)
+    assert b.meta["c3d"]["processor"] == processor and b.meta["c3d"]["format"] == "float32"
+    assert (b.rate, b.labels, b.units) == (a.rate, a.labels, a.units)
     np.testing.assert_array_equal(b.points, a.points)
+    np.testing.assert_array_equal(tc3d.read_raw(other).word, tc3d.read_raw(intel).word)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         filled = torchfill.fill(b, "linear")
-    out = tmp_path / "mips_filled.c3d"
+    out = tmp_path / f"{processor}_filled.c3d"
     torchfill.write(filled, out)
-    _check_write_back(mips, out, filled, filled.meta["filled"])
+    _check_write_back(other, out, filled, filled.meta["filled"])
+
+
+def test_write_back_of_a_marker_subset(recording, tmp_path):
+    """select() keeps point_index and the filled mask aligned: a subset writes into the right
+    points of the source."""
+    path = recording("c3dorg_s02_pc_real.c3d")
+    seq = torchfill.read(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        filled = torchfill.fill(seq, "linear")
+    some = [j for j in range(seq.n_markers) if seq.mask[:, j].any()][:4]
+    subset = filled.select(some)
+    out = tmp_path / "subset.c3d"
+    torchfill.write(subset, out)
+    _check_write_back(path, out, subset, subset.meta["filled"])
+    back = torchfill.read(out)
+    assert not back.mask[:, some].any()

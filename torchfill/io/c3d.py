@@ -482,7 +482,8 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     index = np.asarray(seq.meta["point_index"], dtype=np.int64)
     if seq.n_frames != lay.n_frames or len(index) != seq.n_markers:
         _fail(path, f"cannot write back into {source.name}: it has {lay.n_frames} frames, the "
-                    f"sequence {seq.n_frames} frames x {seq.n_markers} markers")
+                    f"sequence {seq.n_frames} frames x {seq.n_markers} markers (set "
+                    f"seq.source = None to write a fresh C3D)")
     if len(index) and (index.min() < 0 or index.max() >= lay.n_points):
         _fail(path, f"point_index out of range for {source.name} ({lay.n_points} points)")
     raw = _raw_points(buf, lay)
@@ -490,7 +491,7 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     edits = unwritten_edits(seq, raw.xyz[:, index], filled)
     if edits:
         warnings.warn(f"{path.name}: {edits} sample(s) differ from {source.name} but were not "
-                      "filled; only filled samples are written back", stacklevel=3)
+                      "filled; only filled samples are written back", stacklevel=4)
     out = bytearray(buf)
     words = np.ndarray((lay.n_frames, lay.frame_words), lay.storage_dtype, buffer=out,
                        offset=lay.data_offset)

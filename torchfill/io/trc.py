@@ -213,7 +213,7 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
     edits = unwritten_edits(seq, src, filled)
     if edits:
         warnings.warn(f"{path.name}: {edits} sample(s) differ from {parsed.path.name} but were "
-                      "not filled; only filled samples are written back", stacklevel=3)
+                      "not filled; only filled samples are written back", stacklevel=4)
     J = seq.n_markers
     lines = list(parsed.lines)
     for t in np.flatnonzero(filled.any(axis=1)):
