@@ -75,6 +75,7 @@ def methods(kind: str, dev: bool, lowrank: bool) -> dict[str, tuple[str, dict, s
             "pca_train cross": ("pca_train", {}, "cross"),
             "pca_train self": ("pca_train", {}, "self"),
             "pca_train cross no-centre": ("pca_train", {"centre": False}, "cross"),
+            "pca_train cross no own frames": ("pca_train", {"self_share": 0.0}, "cross"),
             "pca_train cross paper rank (0.99)": ("pca_train", {"variance": 0.99}, "cross"),
             "pca_train cross horizontal": ("pca_train", {"layout": "horizontal"}, "cross"),
         })
@@ -83,6 +84,8 @@ def methods(kind: str, dev: bool, lowrank: bool) -> dict[str, tuple[str, dict, s
                 for c in (True, False):
                     for sc in ("cross", "self"):
                         out[f"{sc} v={v} centre={c}"] = ("pca_train", {"variance": v, "centre": c}, sc)
+            for share in (0.0, 0.1, 0.25, 0.5):
+                out[f"cross share={share}"] = ("pca_train", {"self_share": share}, "cross")
             out["cross horizontal no-prior"] = ("pca_train", {"layout": "horizontal", "prior": False}, "cross")
             out["self horizontal"] = ("pca_train", {"layout": "horizontal"}, "self")
     return out
@@ -114,6 +117,8 @@ def run(args) -> list[dict]:
         starts = segment_starts(points.shape[0], args.segments)
         for kind in args.only:
             table = methods(kind, args.dev, args.lowrank)
+            if args.match:
+                table = {k: v for k, v in table.items() if any(m in k for m in args.match)}
             for point in GRIDS[kind]:
                 protocol = point["protocol"]
                 kw = {k: v for k, v in point.items() if k != "protocol"}
@@ -187,8 +192,11 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--only", default="table1,table2,blackout")
     p.add_argument("--csv", default=None, help="write every fill's row here")
+    p.add_argument("--match", default="", help="comma-separated substrings: only methods whose "
+                                                "label contains one")
     args = p.parse_args(argv)
     args.only = [k.strip() for k in args.only.split(",") if k.strip()]
+    args.match = [k for k in args.match.split(",") if k]
     rows = run(args)
     if args.csv:
         with open(args.csv, "w", newline="") as fh:

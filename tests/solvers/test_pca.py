@@ -202,3 +202,18 @@ def test_real_recordings_beat_linear(recording):
     own = [test.points[:1900:2], test.points[2300::2]]
     err_own = metrics.gap_error(torchfill.fill(Xg, method="pca_train", training=own), X, mask)
     assert err_own < 0.25 * lin, (err_own, lin)            # measured: about 10 vs 82.6 mm
+
+
+def test_self_share_uses_own_complete_frames():
+    """self_share=1 learns from the recording's own complete frames only (exact here, though the
+    training set comes from another subspace); self_share=0 from the training set only."""
+    X = spatial_data(seed=6)(300)
+    wrong = spatial_data(seed=7)(300)
+    mask = np.zeros((300, J), dtype=bool)
+    mask[100:200] = gaps.evenly_spaced(100, J, n_gaps=4, gap_length=30, seed=0)
+    Xg = X.clone()
+    Xg[torch.as_tensor(mask)] = float("nan")
+    own = get_solver("pca_train", training=[wrong], self_share=1.0).fit_transform(Xg)
+    other = get_solver("pca_train", training=[wrong], self_share=0.0).fit_transform(Xg)
+    assert _rel(own, X, mask) < 1e-6
+    assert _rel(other, X, mask) > 1e-2

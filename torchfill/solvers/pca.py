@@ -41,6 +41,17 @@ Reading of the paper, and where we depart from the printed equations
   marker's gap from the observed frames of its own three coordinates in a window around the gap,
   with the estimator of Eq. 16 (``layout="horizontal"``).
 
+* Eq. 16 as printed is a plain weighted least-squares fit of the temporal basis to the observed
+  frames. On real recordings it blows up on long blackouts (hundreds of mm at 30-40 % missing),
+  so by default (``prior=True``) the coefficients get the probabilistic-PCA prior of Tipping &
+  Bishop (their variances are the eigenvalues, the noise variance is the mean discarded
+  eigenvalue): ``V^ (V~' W V~ + sigma^2 Lambda^-1)^-1 V~' W B~``. It vanishes on exactly low-rank
+  data, where Eq. 16 is recovered; ``prior=False`` is the paper's estimator.
+* With a training set, ``pca_train`` also mixes the recording's own complete frames (when it has
+  any) into the training moments with the share ``self_share`` of the weight: training and test
+  subjects differ in body size and marker placement, and this adapts the eigenspace to the
+  subject.
+
 Translation. Markers sit at absolute positions in the room, and training and test recordings are
 in different places. With ``centre=True`` (default) every frame is expressed relative to the
 centroid of the markers observed in it (body-centred coordinates, a linear map per template) and
@@ -266,7 +277,10 @@ def temporal_estimate(V: Tensor, Y: Tensor, observed: Tensor, w: Tensor,
     rhs = Vo.T @ (wo[:, None] * Y[observed])                       # V~' W B~
     if prec is not None:
         A = A + torch.diag(prec.to(V.dtype))
-    coef = torch.linalg.lstsq(A, rhs).solution
+    if A.device.type == "cpu":
+        coef = torch.linalg.lstsq(A, rhs).solution                 # rank-revealing (gelsy)
+    else:                                                          # CUDA lstsq assumes full rank
+        coef = torch.linalg.pinv(A, hermitian=True) @ rhs
     out = Y.clone()
     out[~observed] = Vm @ coef                                     # Eq. 16
     return out
@@ -295,6 +309,10 @@ class _PCA(Solver):
                               "variance (0.9999: chosen among 0.99-0.99999 on the development "
                               "recordings cmu_85_02 and HDM_bd_01-02, scripts/pca_tables.py --dev)"),
         "rank": Param(None, int, low=1, allow_none=True, doc="fixed rank r instead of the rule"),
+        "self_share": Param(0.5, float, low=0.0, high=1.0,
+                            doc="with a training set: weight of the recording's own complete frames "
+                                "in the spatial moments (0 = training only; 0.5: best of 0-0.5 on the "
+                                "development recordings)"),
         "prior": Param(True, bool, doc="temporal eigenspace (Eq. 16): add the probabilistic-PCA "
                                        "prior of the coefficients (False: the paper's plain "
                                        "least squares)"),
@@ -329,7 +347,20 @@ class _PCA(Solver):
         if n < need:
             raise ValueError(f"{self.name}: {where} has {n} complete frames (every marker observed); "
                              f"expected at least {need} (3 x {J} markers, or 10)")
+        if items is not None and self.self_share > 0:
+            n, s, S = self._with_own_frames(n, s, S)
         return n, s, S
+
+    def _with_own_frames(self, n: int, s: Tensor, S: Tensor) -> tuple[int, Tensor, Tensor]:
+        """Mix the recording's own complete frames into the training moments with the weight
+        ``self_share`` (of the total); nothing changes when it has none."""
+        D = self._self_data().reshape(self.M_.shape[0], -1)
+        n_o, s_o, S_o = spatial_moments(D[torch.isfinite(D).all(dim=1)])
+        if n_o == 0:
+            return n, s, S
+        N = n + n_o
+        alpha, beta = (1 - self.self_share) * N / n, self.self_share * N / n_o
+        return N, alpha * s + beta * s_o, alpha * S + beta * S_o
 
     def _basis(self, length: int) -> tuple[Tensor, Tensor]:
         """The temporal basis for windows of ``length`` frames (cached per training set)."""
@@ -408,6 +439,12 @@ class PCATrain(_PCA):
         A fixed r instead of the rule.
     centre : bool
         Body-centred coordinates (subtract each frame's centroid of observed markers).
+    self_share : float
+        With a training set, the recording's own complete frames (if any) join the training
+        moments with this share of the weight: adapts the eigenspace to the subject (a departure
+        from the paper; 0 turns it off).
+    prior : bool
+        ``horizontal`` only: the probabilistic-PCA prior of ``pca_blackout``.
     layout : {"vertical", "horizontal"}
         ``vertical`` (Eq. 1-4): spatial eigenspace of pieces stacked vertically, one ``T`` per frame
         template. ``horizontal`` (Eq. 5-8, our reading): temporal eigenspace of pieces concatenated
