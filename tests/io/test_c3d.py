@@ -365,3 +365,9 @@ def test_write_back_of_a_marker_subset(recording, tmp_path):
     _check_write_back(path, out, subset, subset.meta["filled"])
     back = torchfill.read(out)
     assert not back.mask[:, some].any()
+
+
+@pytest.mark.parametrize("stored,units", [("m\x00\x00\x00", "m"), ("mm  ", "mm"), ("MM", "mm"),
+                                          ("", "mm"), ("meters", "m"), ("in", "in")])
+def test_units_normalized(stored, units):
+    assert tc3d.normalize_units(stored) == units

@@ -128,6 +128,8 @@ def parse(buf: bytes, path) -> Layout:
     size = len(buf)
     if size == 0:
         _fail(path, "empty file")
+    if _looks_like_text(buf[:256]):
+        _fail(path, "not a C3D file (it is text)")
     if size < 512 or buf[1] != 0x50:
         _fail(path, "not a C3D file (no C3D header: byte 2 must be 0x50)")
     param_start = (buf[0] - 1) * 512
@@ -164,6 +166,17 @@ def parse(buf: bytes, path) -> Layout:
         _fail(path, f"truncated C3D: {lay.n_frames} frames declared, data for {have} present "
                     f"({size} bytes)")
     return lay
+
+
+def _looks_like_text(head: bytes) -> bool:
+    """True for printable ASCII/UTF-8 text; a C3D starts with a small block number (byte 1 < 9)."""
+    if not head:
+        return False
+    try:
+        text = head.decode("utf-8", errors="strict")
+    except UnicodeDecodeError:
+        return False
+    return all(ch.isprintable() or ch in "\r\n\t" for ch in text)
 
 
 def _parse_params(buf: bytes, start: int, endian: str, processor: str, path) -> dict:
@@ -434,7 +447,7 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
     raw = _raw_points(buf, lay)
     dropped = non_markers(lay, raw.labels) if markers_only else {}
     keep = [i for i in range(lay.n_points) if i not in dropped]
-    units = (strings(lay, "POINT:UNITS") or [""])[0] or "mm"
+    units = normalize_units((strings(lay, "POINT:UNITS") or [""])[0])
     analog_used = _uint(lay, "ANALOG:USED", 0)
     meta = {
         "point_index": keep,
@@ -446,6 +459,18 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
     }
     return MarkerSequence(points=raw.xyz[:, keep], labels=[raw.labels[i] for i in keep],
                           rate=lay.rate, units=units, source=path, meta=meta)
+
+
+_UNIT_NAMES = {"mm": "mm", "millimeter": "mm", "millimeters": "mm", "millimetre": "mm",
+               "millimetres": "mm", "m": "m", "meter": "m", "meters": "m", "metre": "m",
+               "metres": "m", "cm": "cm", "centimeter": "cm", "centimeters": "cm"}
+
+
+def normalize_units(text: str) -> str:
+    """POINT:UNITS as 'mm', 'm' or 'cm' when recognisable (any case, NULs and spaces stripped);
+    other strings are kept as found, an empty one means 'mm' (the C3D default)."""
+    clean = text.strip(" \x00")
+    return _UNIT_NAMES.get(clean.lower(), clean) if clean else "mm"
 
 
 # --------------------------------------------------------------------------------------------
