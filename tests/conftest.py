@@ -3,6 +3,11 @@
 The recordings are not part of the repository. They are looked up in the folder named by the
 environment variable ``TORCHFILL_DATA`` or else in ``shared/data`` beside the repository
 (``<repo>/../shared/data``). Tests that need them skip cleanly when the folder is absent.
+
+Test modules should use the fixtures, not ``import conftest``: pytest swaps the ``conftest`` module
+between test folders (tests/lightning has its own), so such an import breaks depending on the
+collection order. To parametrize over the shared files, compute the folder the same way in a
+helper module of your own (see ``tests/io/iohelpers.py``).
 """
 from __future__ import annotations
 
@@ -13,17 +18,6 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = Path(os.environ.get("TORCHFILL_DATA") or (REPO_ROOT / ".." / "shared" / "data")).resolve()
-
-
-def data_files(*suffixes: str) -> list[Path]:
-    """Recordings in :data:`DATA_DIR` with one of the given suffixes (empty if the folder is absent).
-
-    Use in ``pytest.mark.parametrize``; ids come out as file names.
-    """
-    if not DATA_DIR.is_dir():
-        return []
-    wanted = {s.lower() for s in suffixes}
-    return sorted(p for p in DATA_DIR.iterdir() if p.suffix.lower() in wanted)
 
 
 @pytest.fixture(scope="session")

@@ -1,9 +1,30 @@
-"""Small builders shared by the I/O tests (synthetic recordings that need no shared data)."""
+"""Helpers shared by the I/O tests: the shared recordings to parametrize over, and synthetic
+recordings that need no shared data.
+
+(Test modules import this by name; they must not import ``conftest``, since pytest swaps the
+``conftest`` module between test folders.)
+"""
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 
 from torchfill.sequence import MarkerSequence
+
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+DATA_DIR = Path(os.environ.get("TORCHFILL_DATA") or (REPO_ROOT / ".." / "shared" / "data")).resolve()
+
+
+def data_files(*suffixes: str) -> list[Path]:
+    """Recordings in the shared data folder with one of the given suffixes (the same folder as
+    the ``data_dir`` fixture; empty when absent, so parametrized tests simply do not run)."""
+    if not DATA_DIR.is_dir():
+        return []
+    wanted = {s.lower() for s in suffixes}
+    return sorted(p for p in DATA_DIR.iterdir() if p.suffix.lower() in wanted)
 
 
 def synthetic(T: int = 60, J: int = 5, *, seed: int = 0, gaps: bool = True,

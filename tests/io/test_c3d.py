@@ -12,8 +12,7 @@ import torchfill
 from torchfill.io import FileFormatError
 from torchfill.io import c3d as tc3d
 
-from conftest import data_files
-from iohelpers import linear_fill, longest_run, synthetic
+from iohelpers import data_files, linear_fill, longest_run, synthetic
 
 C3D_FILES = data_files(".c3d")
 ids = [p.name for p in C3D_FILES]

@@ -7,8 +7,7 @@ import pytest
 
 import torchfill
 
-from conftest import data_files
-from iohelpers import linear_fill, longest_run, synthetic
+from iohelpers import data_files, linear_fill, longest_run, synthetic
 
 TRC_FILES = data_files(".trc")
 EXPECTED = {   # frames, markers, rate, first frame (from each file's header)
