@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 import torchfill
+from torchfill.sequence import MarkerSequence
 
 from iohelpers import synthetic
 
@@ -52,10 +56,13 @@ def test_csv_headerless_empty_cells_and_partial_samples(tmp_path):
     path = tmp_path / "raw.csv"
     path.write_text("1,2,3,4,5,6\n"
                     "1.5,,3,NaN,5,6\n"
+                    ",,,,,\n"
+                    "\n"
                     "2,2,3,4,5,6\n")
     seq = torchfill.read(path)
-    assert seq.points.shape == (3, 2, 3) and seq.labels == ["M1", "M2"]
-    np.testing.assert_array_equal(seq.mask, [[False, False], [True, True], [False, False]])
+    assert seq.points.shape == (4, 2, 3) and seq.labels == ["M1", "M2"]
+    np.testing.assert_array_equal(seq.mask, [[False, False], [True, True], [True, True],
+                                             [False, False]])
     assert np.isnan(seq.points[1]).all()                     # a partial sample is missing whole
 
 
@@ -80,3 +87,18 @@ def test_write_accepts_a_bare_array(tmp_path):
     X = synthetic().points
     torchfill.write(X, tmp_path / "bare.npy")
     np.testing.assert_array_equal(np.load(tmp_path / "bare.npy"), X)
+
+
+@settings(max_examples=25, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(1, 6), st.integers(1, 4), st.just(3)),
+              elements=st.one_of(st.floats(-1e6, 1e6, allow_nan=False, width=64),
+                                 st.just(np.nan))))
+def test_csv_and_npz_round_trip_any_values(tmp_path_factory, points):
+    """Any finite values and NaN survive .csv and .npz exactly (a partial sample reads as missing)."""
+    expected = points.copy()
+    expected[~np.isfinite(points).all(axis=2)] = np.nan
+    seq = MarkerSequence(points=points, labels=[f"L{j}" for j in range(points.shape[1])])
+    folder = tmp_path_factory.mktemp("rt")
+    for name in ("a.csv", "a.npz"):
+        torchfill.write(seq, folder / name)
+        np.testing.assert_array_equal(torchfill.read(folder / name).points, expected)

@@ -115,7 +115,7 @@ def _read_csv(path: Path):
     except UnicodeDecodeError:
         _fail(path, "not a text CSV file (binary content)")
     rows = [r for r in csv.reader(io.StringIO(text), delimiter=_delimiter(text))
-            if any(c.strip() for c in r)]
+            if len(r) > 1 or (r and r[0].strip())]       # blank lines go; ",,," is a frame
     if not rows:
         _fail(path, "empty file")
     labels = None
