@@ -15,7 +15,11 @@ Tensor = torch.Tensor
 
 
 def unfold(X: Tensor, mode: int) -> Tensor:
-    """Mode-``mode`` unfolding: shape ``(X.shape[mode], prod(other dims))`` (Kolda order)."""
+    """Mode-``mode`` unfolding: shape ``(X.shape[mode], prod(other dims))``.
+
+    TensorLy's row-major column order (not Kolda & Bader's column-major one): for a recording
+    ``(T, J, 3)`` the temporal unfolding (mode 0) is ``T x 3J`` with columns ``x1 y1 z1 x2 ...``.
+    """
     with tl.backend_context("pytorch"):
         return tl.unfold(X, mode)
 
