@@ -190,3 +190,18 @@ def test_interpolation_error_on_cmu_walk(recording, method):
         np.testing.assert_array_equal(out.points[~mask], P[~mask])
         errors.append(metrics.rmse_missing(out.points, P, mask))
     assert np.mean(errors) < CMU_BOUNDS[method]
+
+
+def test_partly_missing_sample_keeps_its_finite_coordinates():
+    """A sample with only x missing counts as missing; y and z are observed and stay bit-for-bit,
+    also when its gap is longer than max_gap and so left unfilled."""
+    X = walk()
+    G = X.copy()
+    G[5, 1, 0] = np.nan
+    out = torchfill.fill(G, method="linear")
+    np.testing.assert_array_equal(out[5, 1, 1:], X[5, 1, 1:])
+    assert out[5, 1, 0] == pytest.approx((X[4, 1, 0] + X[6, 1, 0]) / 2)
+    with pytest.warns(UnfilledWarning):
+        out = torchfill.fill(G, method="linear", max_gap=0)
+    np.testing.assert_array_equal(out[5, 1, 1:], X[5, 1, 1:])
+    assert np.isnan(out[5, 1, 0])

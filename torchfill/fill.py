@@ -71,6 +71,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     out = points.clone()
     if mask is not None:
         out[mask] = float("nan")
+    given = out.clone() if max_gap is not None else None   # the input's own finite coordinates
     never = missing.all(dim=0)
     if bool(never.any()):
         names = _marker_names(data, never)
@@ -92,7 +93,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
         out[:, keep] = part
     if max_gap is not None:
-        out = _unfill_long_gaps(out, missing, max_gap)
+        out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info)
 
 
@@ -168,10 +169,13 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict):
     return seq
 
 
-def _unfill_long_gaps(out: torch.Tensor, missing: torch.Tensor, max_gap: int) -> torch.Tensor:
+def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Tensor,
+                      max_gap: int) -> torch.Tensor:
+    """Put the long gaps back as they were given (NaN, except finite coordinates of a sample
+    that was only partly missing: those are observed and stay)."""
     long = [(j, a, b) for j, a, b in gap_runs(missing.cpu().numpy()) if b - a > max_gap]
     for j, a, b in long:
-        out[a:b, j] = torch.nan
+        out[a:b, j] = given[a:b, j]
     if long:
         warnings.warn(f"{len(long)} gap(s) longer than max_gap={max_gap} frames left unfilled",
                       UnfilledWarning, stacklevel=3)
