@@ -93,7 +93,8 @@ def explained_rank(eigvals: Tensor, variance: float) -> int:
     if float(total) <= 0:
         return 1
     cum = torch.cumsum(lam, 0) / total
-    r = int(torch.searchsorted(cum, torch.tensor(variance, dtype=cum.dtype, device=cum.device) * (1 - 1e-12)).item()) + 1
+    target = torch.tensor(variance * (1 - 1e-12), dtype=cum.dtype, device=cum.device)
+    r = int(torch.searchsorted(cum, target).item()) + 1
     return max(1, min(r, int((lam > lam[0] * 1e-12).sum())))
 
 
@@ -474,18 +475,20 @@ class PCATrain(_PCA):
         T, J = self.M_.shape[:2]
         missing = ~self.Omega_.all(dim=2)
         Y = self.M_.reshape(T, -1)
+        full = missing.all(dim=1)
         if self.layout == "vertical":
-            n, s, S = self._spatial_stats()
-            out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
-                               centre=self.centre)
+            out = Y
+            if bool((missing.any(dim=1) & ~full).any()):
+                n, s, S = self._spatial_stats()
+                out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
+                                   centre=self.centre)
         else:
             runs = [(a, b, j) for j, a, b in _runs(missing)]
             runs = [r for r in runs if not bool(missing[r[0]:r[1]].all())]
             out = self._temporal_fill_runs(
                 Y, runs, lambda j: slice(3 * j, 3 * j + 3), lambda j: ~missing[:, j],
                 self.window, None)
-        full = missing.all(dim=1)
-        out = torch.where(full[:, None], self.X_.reshape(T, -1), out)
+        out = torch.where(full[:, None], self.X_.reshape(T, -1), out)  # blackouts: linear
         self.X_ = torch.where(self.Omega_.reshape(T, -1), Y, out).reshape(self.M_.shape)
         return {"delta": 0.0}
 
@@ -546,7 +549,8 @@ class PCABlackout(_PCA):
         runs = [(a, b, None) for _, a, b in _runs(full[:, None])]
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
                                        self.window, self.edge_scale)
-        self.X_ = torch.where(self.Omega_.reshape(T, -1), self.M_.reshape(T, -1), out).reshape(self.M_.shape)
+        observed = self.Omega_.reshape(T, -1)
+        self.X_ = torch.where(observed, self.M_.reshape(T, -1), out).reshape(self.M_.shape)
         return {"delta": 0.0}
 
 
