@@ -91,32 +91,51 @@ def _convergence(cfg, rows, out_dir, runs_dir, order, metric):
     if not data:
         return None
     plt = _plt()
-    obs_keys = [k for k in ("objective", "delta") if any(k in list(d["history_keys"]) for d in data)]
-    fig, axes = plt.subplots(1, 1 + len(obs_keys), figsize=(4.2 * (1 + len(obs_keys)), 3.4),
+    has = lambda k: any(k in list(d["history_keys"]) for d in data)  # noqa: E731
+    obs_keys = [next((k for k in ("objective", "residual") if has(k)), None), "delta"]
+    obs_keys = [k for k in obs_keys if k and has(k)]
+    if any(_rank_keys(d) for d in data):
+        obs_keys.append("ranks")
+    fig, axes = plt.subplots(1, 1 + len(obs_keys), figsize=(3.8 * (1 + len(obs_keys)), 3.3),
                              squeeze=False)
-    for d in data:
-        ck = list(d["curve_keys"])
-        axes[0][0].plot(d["curve"][:, ck.index("iter")], d["curve"][:, ck.index("rmse")],
-                        label=str(d["method"]))
-        hk = list(d["history_keys"])
-        for ax, key in zip(axes[0][1:], obs_keys):
-            if key in hk:
-                ax.plot(d["history"][:, hk.index("iter")], d["history"][:, hk.index(key)],
-                        label=str(d["method"]))
-    axes[0][0].set_title("RMSE vs truth (evaluation only)", fontsize=9)
-    axes[0][0].set_ylabel("rmse")
-    for ax, key in zip(axes[0][1:], obs_keys):
+    axes = axes[0]
+    for i, d in enumerate(data):
+        color, name = f"C{i}", str(d["method"])
+        ck, hk = list(d["curve_keys"]), list(d["history_keys"])
+        axes[0].plot(d["curve"][:, ck.index("iter")], d["curve"][:, ck.index("rmse")],
+                     color=color, label=name)
+        it = d["history"][:, hk.index("iter")]
+        for ax, key in zip(axes[1:], obs_keys):
+            if key == "ranks":
+                for n, rk in enumerate(_rank_keys(d)):
+                    ax.plot(it, d["history"][:, hk.index(rk)], color=color,
+                            ls=("-", "--", ":", "-.")[n % 4], label=f"{name} {rk}")
+            elif key in hk:
+                ax.plot(it, d["history"][:, hk.index(key)], color=color, label=name)
+    axes[0].set_title("RMSE vs truth (evaluation only)", fontsize=9)
+    axes[0].set_ylabel("rmse")
+    for ax, key in zip(axes[1:], obs_keys):
         ax.set_title(f"{key} (observed data)", fontsize=9)
-        ax.set_yscale("log")
-    for ax in axes[0]:
+        if key == "ranks":
+            ax.legend(fontsize=6)
+        else:
+            ax.set_yscale("log")
+    for ax in axes:
         ax.set_xlabel("iteration")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     path = out_dir / "convergence.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def _rank_keys(d) -> list[str]:
+    """History keys holding ranks (``R1``, ``R2``, ... or ``rank``)."""
+    import re
+
+    return [k for k in map(str, d["history_keys"]) if re.fullmatch(r"R\d+|rank", k)]
 
 
 def _trajectories(cfg, rows, out_dir, runs_dir, order, metric, n_markers: int = 3):

@@ -53,7 +53,7 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
         rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
         mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
         params = dict(case.method.params)
-        if cfg.training:
+        if cfg.training and "training" in type(get_solver(case.method.solver)).declared_params():
             params["training"] = [align_training(cfg.recording_path(name), rec.labels)
                                   for name in cfg.training]
         solver = get_solver(case.method.solver, **params)
@@ -109,10 +109,20 @@ def _key_row(cfg: Config, case: Case) -> dict[str, Any]:
             "method": case.method.label}
 
 
-def _init_worker() -> None:
+def threads_per_case() -> int:
+    """Torch threads per case (env ``TORCHFILL_THREADS``, default 1): the matrices of one case are
+    small, and multi-threaded LAPACK on small matrices is slower than one thread, much slower when the
+    machine is busy (measured: 10x on the 2-core CI machine under load)."""
+    value = os.environ.get("TORCHFILL_THREADS", "1")
+    if not value.isdigit() or int(value) < 1:
+        raise ValueError(f"TORCHFILL_THREADS expected a positive integer, found {value!r}")
+    return int(value)
+
+
+def _init_worker(threads: int = 1) -> None:
     import torch
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
 
 
 # -- the experiment -------------------------------------------------------------------------------
@@ -186,12 +196,21 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
 
         args = [(str(cfg.path), c, str(runs_dir)) for c in todo]
         show = [_is_showcase(c, showcase) for c in todo]
+        threads = threads_per_case()
         if workers == 1:
-            for i, (a, s) in enumerate(zip(args, show), 1):
-                record(i, run_case(*a, showcase=s, progress=progress))
+            import torch
+
+            before = torch.get_num_threads()
+            torch.set_num_threads(threads)
+            try:
+                for i, (a, s) in enumerate(zip(args, show), 1):
+                    record(i, run_case(*a, showcase=s, progress=progress))
+            finally:
+                torch.set_num_threads(before)
         else:
             ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as pool:
+            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                        initargs=(threads,)) as pool:
                 futures = [pool.submit(run_case, *a, showcase=s) for a, s in zip(args, show)]
                 try:
                     for i, fut in enumerate(cf.as_completed(futures), 1):
