@@ -78,7 +78,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=2, help="runs per method; the best is kept")
     ap.add_argument("--profile", nargs="*", default=None, help="methods to profile (cProfile)")
     ap.add_argument("--svd", default="gram", choices=("gram", "full"))
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
 
     truth = load(args.recording)
     T, J, _ = truth.shape

@@ -69,16 +69,24 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", nargs="+", default=METHODS)
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--protocols", nargs="+", default=list(PROTOCOLS))
+    ap.add_argument("--rates", nargs="+", type=float, default=None,
+                    help="subset of the random-entry rates (default 0.2 .. 0.6)")
+    ap.add_argument("--lengths", nargs="+", type=int, default=None,
+                    help="subset of the run lengths (default 20 .. 60)")
     ap.add_argument("--csv", type=Path, default=None, help="write every run here")
     ap.add_argument("--md", type=Path, default=None, help="write the markdown tables here")
+    ap.add_argument("--from-logs", nargs="+", type=Path, default=None,
+                    help="rebuild the tables from the lines earlier runs printed (no solving)")
     args = ap.parse_args(argv)
 
-    rows = []
-    for rec in args.recordings:
+    rows = parse_logs(args.from_logs) if args.from_logs else []
+    for rec in [] if args.from_logs else args.recordings:
         truth = load(data_dir() / rec)
         T, J, _ = truth.shape
         for protocol in args.protocols:
             key, values, extra = PROTOCOLS[protocol]
+            chosen = args.rates if protocol == "random_entries" else args.lengths
+            values = chosen if chosen is not None else values
             for value in values:
                 for seed in args.seeds:
                     mask = gaps.generate(protocol, T, J, seed=seed, **{key: value}, **extra)
@@ -95,12 +103,33 @@ def main(argv=None) -> int:
             writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
+    if not rows:
+        print("no results")
+        return 1
     text = tables(rows, args.methods)
     print(text)
     if args.md:
         args.md.parent.mkdir(parents=True, exist_ok=True)
         args.md.write_text(text)
     return 0
+
+
+def parse_logs(paths: list[Path]) -> list[dict]:
+    """Rows from lines ``REC PROTOCOL KEY=VALUE seed=S METHOD: ERR (SEC s)`` (later lines win)."""
+    found = {}
+    for path in paths:
+        for line in path.read_text().splitlines():
+            parts = line.split()
+            if len(parts) != 8 or not parts[4].endswith(":") or "=" not in parts[2]:
+                continue
+            value = float(parts[2].split("=")[1])
+            value = int(value) if value.is_integer() else value
+            row = {"recording": parts[0], "protocol": parts[1], "param": value,
+                   "seed": int(parts[3].split("=")[1]), "method": parts[4].rstrip(":"),
+                   "rmse_missing": float(parts[5]),
+                   "seconds": float(parts[6].lstrip("("))}
+            found[(row["recording"], row["protocol"], value, row["seed"], row["method"])] = row
+    return list(found.values())
 
 
 def tables(rows: list[dict], methods: list[str]) -> str:
