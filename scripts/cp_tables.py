@@ -5,6 +5,8 @@ frames; RMSE/AvE/STD over all entries (mm) and the RMSE over missing entries. Us
 
     OMP_NUM_THREADS=1 .venv/bin/python scripts/cp_tables.py [--recordings cmu_02_01 ...]
         [--methods cp smooth_cp ...] [--markers 10 20 30] [--lengths 20 50 100] [--seeds 0 1 2]
+        [--csv runs.csv]
+    .venv/bin/python scripts/cp_tables.py --tables runs.csv ...   # markdown tables
 """
 from __future__ import annotations
 
@@ -50,8 +52,63 @@ def run(truth: np.ndarray, method: str, mask: np.ndarray, **params) -> tuple[dic
     return metrics.score(filled, truth, mask), time.perf_counter() - t0, solver
 
 
+#: The authors' own code on CMU 02_01, honest last iterate (issue 4): RMSE over all entries, mm.
+AUTHORS_02_01 = {(10, 20): 0.75, (10, 50): 2.31, (10, 100): 3.68, (20, 20): 1.28, (20, 50): 2.78,
+                 (20, 100): 5.36, (30, 20): 3.52, (30, 50): 5.29, (30, 100): 7.83}
+
+
+def tables(csv_paths: list[str]) -> None:
+    """Markdown tables (mean over seeds) from the CSV rows written by ``--csv``."""
+    import csv
+    from collections import defaultdict
+    cols = ["rmse", "ave", "std", "rmse_missing", "time", "iters", "rank"]
+    runs = defaultdict(list)
+    for path in csv_paths:
+        for row in csv.reader(open(path)):
+            rec, nm, gl, method, seed = row[:5]
+            runs[(rec, int(nm), int(gl), method)].append([float(v) for v in row[5:]])
+    methods = [m for m in ("linear", "spline", "pchip", "tucker", "tucker_tnn", "cp", "smooth_cp",
+                           "sparse_cp") if any(k[3] == m for k in runs)]
+    settings = sorted({k[:3] for k in runs})
+    for metric in ("rmse", "rmse_missing"):
+        i = cols.index(metric)
+        extra = " authors' code |" if metric == "rmse" else ""
+        print(f"\n{metric} (mm, mean over seeds; n = seeds)\n")
+        print("| recording | markers | gap |" + extra + "".join(f" {m} |" for m in methods))
+        print("|---|---|---|" + ("---|" if extra else "") + "---|" * len(methods))
+        for rec, nm, gl in settings:
+            line = f"| {rec} | {nm} | {gl} |"
+            if extra:
+                a = AUTHORS_02_01.get((nm, gl)) if rec == "cmu_02_01" else None
+                line += f" {a:.2f} |" if a is not None else " - |"
+            vals = {m: np.mean([r[i] for r in runs[(rec, nm, gl, m)]]) for m in methods
+                    if runs.get((rec, nm, gl, m))}
+            best = min(vals.values()) if vals else None
+            for m in methods:
+                if m not in vals:
+                    line += " - |"
+                    continue
+                n = len(runs[(rec, nm, gl, m)])
+                txt = f"{vals[m]:.2f}" + ("" if n == 3 else f" (n={n})")
+                line += f" **{txt}** |" if vals[m] == best else f" {txt} |"
+            print(line)
+    print("\nCP family: AvE / STD (mm), time (s), sweeps, rank (means over seeds)\n")
+    cp = [m for m in ("cp", "smooth_cp", "sparse_cp") if m in methods]
+    print("| recording | markers | gap |" + "".join(f" {m} AvE / STD | {m} s / sweeps / R |" for m in cp))
+    print("|---|---|---|" + "---|---|" * len(cp))
+    for rec, nm, gl in settings:
+        line = f"| {rec} | {nm} | {gl} |"
+        for m in cp:
+            r = np.mean(runs[(rec, nm, gl, m)], axis=0) if runs.get((rec, nm, gl, m)) else None
+            line += (f" {r[1]:.3f} / {r[2]:.2f} | {r[4]:.1f} / {r[5]:.0f} / {r[6]:.0f} |"
+                     if r is not None else " - | - |")
+        print(line)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tables", nargs="+", default=None, metavar="CSV",
+                    help="print the markdown tables from these CSV files and exit")
     ap.add_argument("--recordings", nargs="+", default=["cmu_02_01", "cmu_85_02"])
     default = [m for m in ("linear", "spline", "pchip", "tucker", "tucker_tnn", "cp",
                            "smooth_cp", "sparse_cp") if m in available()]
@@ -61,6 +118,9 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--csv", default=None, help="append one row per run to this CSV")
     args = ap.parse_args()
+    if args.tables:
+        tables(args.tables)
+        return
     out = open(args.csv, "a") if args.csv else None
     for rec in args.recordings:
         truth = load(rec)
