@@ -37,8 +37,9 @@ def smoke_data(data_dir, recording, monkeypatch):
 def test_smoke_experiment_end_to_end(smoke_data, tmp_path):
     out = runner.run_experiment(SMOKE, output=tmp_path / "smoke")
     got = rows(out)
-    assert [r["method"] for r in got] == ["linear", "pchip"]
+    assert [r["method"] for r in got] == ["linear", "svt"]
     assert all(r["status"] == "ok" for r in got)
+    assert got[0]["n_iter"] == "1" and 1 < int(got[1]["n_iter"]) <= 20
     for r in got:
         # 1-3 gaps of 40 frames (1/3 s at 120 Hz) on 5 of 41 markers: interpolation errs by
         # centimetres inside the gaps, never by metres, and never exactly 0
@@ -50,6 +51,9 @@ def test_smoke_experiment_end_to_end(smoke_data, tmp_path):
     best = min(got, key=lambda r: float(r["rmse"]))
     assert f"**{float(best['rmse']):.2f} ± 0.00**" in table
     assert (out / "trajectories.png").stat().st_size > 1000
+    assert (out / "convergence.png").stat().st_size > 1000        # svt iterates
+    logs = list((out / "runs" / "logs").glob("*svt*/metrics.csv"))
+    assert len(logs) == 1 and len(logs[0].read_text().splitlines()) == int(got[1]["n_iter"]) + 1
 
 
 def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, monkeypatch):
@@ -68,15 +72,16 @@ def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, 
         runner.run_experiment(SMOKE, output=out)
     first = rows(out)
     assert [r["method"] for r in first] == ["linear"]
+    assert calls == ["linear", "svt"]
     with open(out / "cases.csv", "a") as handle:        # a torn line, as if killed mid-write
         handle.write("hdm05_dg_06-03_03_120.c3d,5,4")
 
     calls.clear()
     monkeypatch.setattr(runner, "run_case", lambda *a, **kw: calls.append(a[1].method.label) or real(*a, **kw))
     runner.run_experiment(SMOKE, output=out, resume=True)
-    assert calls == ["pchip"]
+    assert calls == ["svt"]
     final = rows(out)
-    assert [r["method"] for r in final] == ["linear", "pchip"]
+    assert [r["method"] for r in final] == ["linear", "svt"]
     assert final[0] == first[0]                          # the finished case was kept, not redone
 
     calls.clear()
@@ -93,7 +98,7 @@ def test_limit_and_unregistered_methods(smoke_data, tmp_path, capsys):
 
 
 def test_same_solver_twice_under_two_labels(smoke_data, tmp_path):
-    path = write_config(tmp_path, "methods: {linear: ~, pchip: ~, a: {method: linear}, b: {method: spline}}\n")
+    path = write_config(tmp_path, "methods: {linear: ~, svt: ~, a: {method: linear}, b: {method: spline}}\n")
     got = rows(runner.run_experiment(path, output=tmp_path / "o"))
     assert [(r["method"], r["solver"]) for r in got] == [("a", "linear"), ("b", "spline")]
 
@@ -138,3 +143,39 @@ def test_table_is_mean_std_over_seeds_with_best_in_bold():
                  "status": "error: boom"})
     text = report.table_markdown(data, ["recording", "gap_length"], "method", "rmse", ["a", "b"])
     assert f"| r | 50 | 2.00 ± {math.sqrt(2):.2f} | **1.50 ± 0.00** |" in text
+
+
+def test_training_recordings_aligned_by_label_only_for_solvers_that_take_them(smoke_data, tmp_path,
+                                                                             monkeypatch, recording):
+    import torchfill.solvers as solvers
+    from torchfill.lightning.data import load_recording, read_sequence
+
+    recording("cmu_02_01.c3d")
+    train = smoke_data / "hdm05_dg_06-03_03_120.c3d"
+    if "pca_train" not in solvers.available():
+        pytest.skip("pca_train not registered")
+    calls = []
+    real = solvers.get_solver
+
+    def spy(name, **params):
+        calls.append((name, params))
+        return real(name, **params)
+
+    monkeypatch.setattr(solvers, "get_solver", spy)
+    path = write_config(tmp_path, "recordings: [cmu_02_01.c3d]\ntraining: [hdm05_dg_06-03_03_120.c3d]\n"
+                        "methods: {svt: ~, pca_train: {}, self: {method: pca_train, training: ~}}\n")
+    got = rows(runner.run_experiment(path, output=tmp_path / "o"))
+    assert [r["status"] for r in got] == ["ok"] * 3
+    assert all("training" not in p for n, p in calls if n == "linear")
+    given = [p["training"] for n, p in calls if n == "pca_train" and "training" in p]
+    assert len(given) == 2 and given[1] is None          # the 'self' method: no training set
+    (A,) = given[0]
+    test_labels = load_recording(smoke_data / "cmu_02_01.c3d").labels
+    seq = read_sequence(train)
+    assert A.shape == (seq.n_frames, len(test_labels), 3)
+    src = seq.short_labels()
+    for j, label in enumerate(test_labels):
+        if label in src:
+            np.testing.assert_array_equal(A[:, j], seq.points[:, src.index(label)])
+        else:
+            assert np.isnan(A[:, j]).all()

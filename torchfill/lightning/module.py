@@ -77,7 +77,7 @@ def quiet_lightning() -> None:
                  ".*number of training batches.*", ".*GPU available but not used.*",
                  ".*TPU available.*", ".*LightningModule.configure_optimizers.*",
                  ".*`training_step` returned `None`.*", ".*log_every_n_steps.*",
-                 ".*LeafSpec.*", ".*exists and is not empty.*"):
+                 ".*LeafSpec.*", ".*exists and is not empty.*", ".*in eval mode at the start.*"):
         warnings.filterwarnings("ignore", message=text)
 
 

@@ -77,12 +77,16 @@ def _error_by(cfg, rows, out_dir, runs_dir, order, metric):
 
 
 def _showcase(runs_dir: Path, order: list[str]) -> list[dict]:
+    """The showcase arrays of each method, all of the same (recording, point, seed)."""
     found = []
     for method in order:
         path = runs_dir / "showcase" / f"{method}.npz"
         if path.exists():
             with np.load(path) as z:
                 found.append({k: z[k] for k in z.files})
+    if found and "key" in found[0]:
+        where = list(found[0]["key"][:-1])
+        found = [d for d in found if "key" in d and list(d["key"][:-1]) == where]
     return found
 
 

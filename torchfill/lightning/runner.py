@@ -52,10 +52,7 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     try:
         rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
         mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
-        params = dict(case.method.params)
-        if cfg.training and "training" in type(get_solver(case.method.solver)).declared_params():
-            params["training"] = [align_training(cfg.recording_path(name), rec.labels)
-                                  for name in cfg.training]
+        params = _training_params(cfg, case, rec.labels, get_solver, align_training)
         solver = get_solver(case.method.solver, **params)
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
@@ -80,13 +77,30 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
                    solve_s=round(module.solve_seconds, 4), T=rec.shape[0], J=rec.shape[1],
                    status="ok")
         if showcase:
-            _save_showcase(Path(runs_dir) / "showcase" / f"{case.method.label}.npz", case, rec,
-                           mask, evaluation, solver.history_)
+            _save_showcase(_showcase_path(runs_dir, case), case, rec, mask, evaluation,
+                           solver.history_)
     except Exception as err:  # a failing method must not stop the grid; its row says why
         row.update(solver=case.method.solver, status=f"error: {type(err).__name__}: "
                    + " ".join(str(err).split())[:300])
     row["wall_s"] = round(time.perf_counter() - start, 4)
     return row
+
+
+def _training_params(cfg: Config, case: Case, labels, get_solver, align_training) -> dict:
+    """The method's hyperparameters, with ``training`` as arrays ``(T_i, J, 3)`` aligned by short
+    label to ``labels``: the config's ``training`` recordings for every solver that declares
+    ``training``, unless the method sets its own (recording names, or ``~`` = none, which leaves
+    the solver to train on the recording itself)."""
+    params = dict(case.method.params)
+    own = "training" in params
+    declared = "training" in type(get_solver(case.method.solver)).declared_params()
+    if not own and not (cfg.training and declared):
+        return params
+    names = params["training"] if own else cfg.training
+    if names is not None:
+        names = [names] if isinstance(names, str) else names
+        params["training"] = [align_training(cfg.recording_path(n), labels) for n in names]
+    return params
 
 
 def _save_showcase(path: Path, case: Case, rec, mask, evaluation, history) -> None:
@@ -100,7 +114,7 @@ def _save_showcase(path: Path, case: Case, rec, mask, evaluation, history) -> No
     np.savez_compressed(tmp, filled=evaluation.filled, truth=rec.truth, mask=mask,
                         labels=np.array(rec.labels), rate=rec.rate, history=hist,
                         history_keys=np.array(keys), curve=curve, curve_keys=np.array(curve_keys),
-                        method=case.method.label)
+                        method=case.method.label, key=np.array(case.key))
     os.replace(tmp, path)
 
 
@@ -155,7 +169,11 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
             print(f"{cfg.name}: method {m.label!r} ({m.solver}) is not registered; skipped", flush=True)
             continue
         try:
-            get_solver(m.solver, **m.params)
+            get_solver(m.solver, **{k: v for k, v in m.params.items() if k != "training"})
+            names = m.params.get("training") or []
+            for name in [names] if isinstance(names, str) else names:
+                if not isinstance(name, str) or not cfg.recording_path(name).is_file():
+                    raise ValueError(f"training recording {name!r} not found in {cfg.data_dir}")
         except ValueError as err:
             raise ValueError(f"{cfg.path.name}: methods.{m.label}: {err}") from None
         methods.append(m)
@@ -169,11 +187,14 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     columns = ["recording", *cfg.grid, "seed", "method", *TAIL]
     csv_path = out_dir / "cases.csv"
     done = _read_done(csv_path, columns, cfg) if resume else {}
+    showcase = _showcase_key(cfg)
+    for case in cases:     # a showcase case whose plot arrays are missing or stale runs again
+        if _is_showcase(case, showcase) and not _showcase_current(runs_dir, case):
+            done.pop(case.key, None)
     if not resume and csv_path.exists():
         csv_path.unlink()
     _rewrite(csv_path, columns, list(done.values()))
     todo = [c for c in cases if c.key not in done]
-    showcase = _showcase_key(cfg)
     if resume and done:
         print(f"{cfg.name}: resuming, {len(cases) - len(todo)} of {len(cases)} cases already done",
               flush=True)
@@ -188,11 +209,12 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
             handle.flush()
             os.fsync(handle.fileno())
             metric = cfg.table["metric"]
-            result = f"{metric}={float(row[metric]):.4g}" if row["status"] == "ok" else row["status"]
+            result = (f"{metric}={float(row[metric]):.4g}, {row['n_iter']} it"
+                      if row["status"] == "ok" else row["status"])
             print(f"[{i}/{len(todo)}] {row['recording']} "
                   + " ".join(f"{k}={row[k]}" for k in cfg.grid)
-                  + f" seed={row['seed']} {row['method']}: {result}, {row.get('n_iter', '')} it, "
-                  f"{row['wall_s']:.2f} s", flush=True)
+                  + f" seed={row['seed']} {row['method']}: {result}, {row['wall_s']:.2f} s",
+                  flush=True)
 
         args = [(str(cfg.path), c, str(runs_dir)) for c in todo]
         show = [_is_showcase(c, showcase) for c in todo]
@@ -265,6 +287,21 @@ def _showcase_key(cfg: Config) -> tuple:
 
 def _is_showcase(case: Case, key: tuple) -> bool:
     return (case.recording, case.point, case.seed) == key
+
+
+def _showcase_path(runs_dir, case: Case) -> Path:
+    return Path(runs_dir) / "showcase" / f"{case.method.label}.npz"
+
+
+def _showcase_current(runs_dir, case: Case) -> bool:
+    path = _showcase_path(runs_dir, case)
+    if not path.exists():
+        return False
+    try:
+        with np.load(path) as z:
+            return "key" in z.files and list(z["key"]) == list(case.key)
+    except (OSError, ValueError):
+        return False
 
 
 def _read_rows(path: Path) -> list[dict]:
