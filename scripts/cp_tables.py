@@ -134,6 +134,7 @@ def main() -> None:
                                                   seed=seed)
                         s, dt, solver = run(truth, method, mask)
                         rank = getattr(solver, "rank_", float("nan"))
+                        rank = float(rank) if isinstance(rank, (int, float)) else float("nan")
                         rows.append([s["rmse"], s["ave"], s["std"], s["rmse_missing"], dt,
                                      solver.n_iter_, rank])
                         if out:
