@@ -86,10 +86,15 @@ def load_recording(path: Path, frames: tuple[int, int] | None = None) -> Recordi
                      units=seq.units)
 
 
+@functools.lru_cache(maxsize=16)
+def _read_cached(path: Path) -> MarkerSequence:
+    return read_sequence(path)
+
+
 def align_training(path: Path, labels: list[str]) -> np.ndarray:
     """A training recording as ``(T_i, J, 3)`` with its markers in the order of ``labels`` (short
-    labels of the test recording); a marker it lacks is NaN throughout."""
-    seq = read_sequence(Path(path))
+    labels of the test recording); a marker it lacks is NaN throughout. A new array every call."""
+    seq = _read_cached(Path(path))
     index = {label: j for j, label in enumerate(seq.short_labels())}
     out = np.full((seq.n_frames, len(labels), 3), np.nan)
     for j, label in enumerate(labels):

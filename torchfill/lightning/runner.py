@@ -133,6 +133,27 @@ def threads_per_case() -> int:
     return int(value)
 
 
+class _ThreadEnv:
+    """Set ``OMP/OPENBLAS/MKL_NUM_THREADS`` (unless the user set them) while worker processes start,
+    so NumPy/SciPy's BLAS in a worker does not spin extra threads against the other workers."""
+
+    NAMES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+    def __init__(self, threads: int) -> None:
+        self.threads, self.saved = str(threads), {}
+
+    def __enter__(self):
+        for name in self.NAMES:
+            if name not in os.environ:
+                self.saved[name] = None
+                os.environ[name] = self.threads
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for name in self.saved:
+            os.environ.pop(name, None)
+
+
 def _init_worker(threads: int = 1) -> None:
     import torch
 
@@ -231,8 +252,9 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
                 torch.set_num_threads(before)
         else:
             ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                        initargs=(threads,)) as pool:
+            pool_env = _ThreadEnv(threads)     # BLAS/OpenMP threads of the workers (read at start)
+            with pool_env, cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                                  initargs=(threads,)) as pool:
                 futures = [pool.submit(run_case, *a, showcase=s) for a, s in zip(args, show)]
                 try:
                     for i, fut in enumerate(cf.as_completed(futures), 1):
