@@ -6,7 +6,7 @@
 2. Time per sweep at a fixed rank against the number of frames on HDM05 bd_05-01 (first
    1000 .. 5920 frames, 10 markers x 100 frames missing): the growth with T.
 
-Usage: ``.venv/bin/python scripts/bench_cp.py [--repeat 2] [--rank 30]``
+Usage: ``.venv/bin/python scripts/bench_cp.py [--repeat 2] [--rank 30] [--threads 1]``
 """
 from __future__ import annotations
 
@@ -76,7 +76,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--rank", type=int, default=30)
+    ap.add_argument("--threads", type=int, default=None,
+                    help="torch threads (default: torch's own; 1 is much faster on a loaded machine)")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
     full_fills(args.repeat)
     per_sweep(args.repeat, args.rank)

@@ -65,6 +65,8 @@ def tables(csv_paths: list[str]) -> None:
     runs = defaultdict(list)
     for path in csv_paths:
         for row in csv.reader(open(path)):
+            if row[0] == "recording":
+                continue
             rec, nm, gl, method, seed = row[:5]
             runs[(rec, int(nm), int(gl), method)].append([float(v) for v in row[5:]])
     methods = [m for m in ("linear", "spline", "pchip", "tucker", "tucker_tnn", "cp", "smooth_cp",
