@@ -140,9 +140,9 @@ def test_orthogonal_parametrization_is_removed_after_fit():
 # -- recovery and observed entries --------------------------------------------------------------
 # Centring each coordinate on its observed mean (the base class) adds a rank-one term, so the
 # centred tensor has multilinear rank (R1+1, R2+1, min(R3+1, 3)), and a CP rank R+1.
-# Measured (lbfgs): tucker 6.8e-4 .. , cp ..; the bounds below leave a margin but fail on a
-# start that is not refined (the HOSVD of the interpolated data is at ~1e-1).
-@pytest.mark.parametrize("optimizer", ["lbfgs", "adam"])
+# The bounds below leave a margin over what was measured, and fail on a start that is not refined
+# (the HOSVD of the interpolated data, checked below). Adam is slower to reach them: marked slow.
+@pytest.mark.parametrize("optimizer", ["lbfgs", pytest.param("adam", marks=pytest.mark.slow)])
 def test_tucker_recovers_low_rank_tensor(optimizer):
     X, mask = tucker_data()
     kw = {"max_iter": 600} if optimizer == "lbfgs" else {"max_iter": 1000}
@@ -155,8 +155,8 @@ def test_tucker_recovers_low_rank_tensor(optimizer):
 
 def test_cp_recovers_low_rank_tensor():
     X, mask = cp_data()
-    F = get_solver("grad_cp", rank=4, optimizer="lbfgs", max_iter=800).fit_transform(X, mask)
-    assert missing_relerr(F, X, mask) < 1e-2
+    F = get_solver("grad_cp", rank=4, optimizer="lbfgs", max_iter=300).fit_transform(X, mask)
+    assert missing_relerr(F, X, mask) < 1e-2                       # measured 7.7e-4 (2.5e-2 at 150)
 
 
 @pytest.mark.parametrize("name", ["grad_tucker", "grad_cp"])
