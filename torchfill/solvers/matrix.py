@@ -602,9 +602,12 @@ class TrNND2(_Truncated):
     def _update_X(self, rho: float) -> Tensor:
         """X-update: solve (2I + D1^T D1 + D2^T D2) X = rhs, banded, factored once."""
         T = self.Xhat_.shape[0]
-        rhs = (self.W1_ - self.Y1_ / rho) + (self.W2_ - self.Y2_ / rho) \
-            + difference_adjoint(self.W3_ - self.Y3_ / rho, 1, T) \
-            + difference_adjoint(self.W4_ - self.Y4_ / rho, 2, T)
+        # D1^T a + D2^T b = D1^T (a + D1'^T b) with D2 = D1' D1: one adjoint pass fewer
+        a = self.W3_ - self.Y3_ / rho
+        if self.W4_.shape[0] > 0:
+            a = a + difference_adjoint(self.W4_ - self.Y4_ / rho, 1, T - 1)
+        rhs = (self.W1_ + self.W2_) - (self.Y1_ + self.Y2_) / rho
+        rhs += difference_adjoint(a, 1, T)
         return self.K_.solve(rhs)
 
     def _update_W1(self, X: Tensor, rho: float) -> int:
@@ -636,7 +639,8 @@ class TrNND2(_Truncated):
     def _inner_step(self) -> dict[str, float]:
         rho = self.rho_
         X = self._update_X(rho)
-        D1X, D2X = difference(X, 1), difference(X, 2)
+        D1X = difference(X, 1)
+        D2X = difference(D1X, 1)                  # D2 = D1 D1
         rank = self._update_W1(X, rho)
         self._update_W2(X, rho)
         self._update_W3(D1X, rho)
