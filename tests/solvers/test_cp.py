@@ -1,19 +1,14 @@
 """CP, SmoothCP and SparseCP (Mohaoui & Dmytryshyn 2024): recovery, priors, real-data accuracy."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
+import torchfill
 from torchfill import gaps, metrics
 from torchfill.solvers import get_solver
 from torchfill.solvers.cp import difference_gram, leading_rank_one, shifted_gap_holdout
-
-DATA = Path(os.environ.get("TORCHFILL_DATA",
-                           Path(__file__).resolve().parents[2] / ".." / "shared" / "data"))
 
 
 def _cp_tensor(shape, R, seed=0):
@@ -22,15 +17,11 @@ def _cp_tensor(shape, R, seed=0):
     return torch.einsum("ir,jr,kr->ijk", *factors)
 
 
-def _load(name):
-    path = DATA / name
-    if not path.is_file():
-        pytest.skip(f"{path} not available")
-    ezc3d = pytest.importorskip("ezc3d")
-    c = ezc3d.c3d(str(path))
-    labels = c["parameters"]["POINT"]["LABELS"]["value"]
-    keep = [i for i, lab in enumerate(labels) if not lab.startswith("*")]
-    return np.transpose(c["data"]["points"][:3], (2, 1, 0))[:, keep].astype(np.float64)
+def _load(path):
+    """(T, J, 3) points, labels starting with '*' (HDM05 duplicates) dropped."""
+    seq = torchfill.read(path)
+    keep = [i for i, lab in enumerate(seq.labels) if not str(lab).startswith("*")]
+    return np.asarray(seq.points, dtype=np.float64)[:, keep]
 
 
 def test_difference_gram_matches_dense_operator():
@@ -85,6 +76,16 @@ def test_holdout_copies_the_gap_pattern_inside_observed_data():
     assert set(per_marker[:4].tolist()) == {20} and int(per_marker[4:].sum()) == 0
 
 
+def test_holdout_never_takes_more_than_half_of_a_markers_samples():
+    # a gap over half the recording: the shifted copy would leave those markers unobserved
+    Omega = torch.ones(200, 12, 3, dtype=torch.bool)
+    Omega[90:190, :4] = False
+    V = shifted_gap_holdout(Omega, torch.Generator().manual_seed(0))
+    assert V is not None and not bool((V & ~Omega).any())
+    seen = Omega[:, :, 0].sum(dim=0)
+    assert bool((V[:, :, 0].sum(dim=0) <= 0.5 * seen).all())
+
+
 def _fit_fixed_rank(name, X, **params):
     return get_solver(name, holdout=False, rank_max=8, max_iter=150, **params).fit(X)
 
@@ -117,8 +118,8 @@ def test_sparse_prior_gives_sparser_marker_factors():
 
 
 @pytest.mark.parametrize("name", ["cp", "smooth_cp", "sparse_cp"])
-def test_real_recording_beats_linear_interpolation(name):
-    truth = _load("cmu_02_01.c3d")
+def test_real_recording_beats_linear_interpolation(name, recording):
+    truth = _load(recording("cmu_02_01.c3d"))
     T, J, _ = truth.shape
     mask = gaps.shared_window(T, J, n_markers=10, gap_length=50, seed=0)
     X = truth.copy()
