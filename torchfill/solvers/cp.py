@@ -231,14 +231,16 @@ def shifted_gap_holdout(Omega: Tensor, generator: torch.Generator, max_share: fl
     if T < 10 or not bool(gaps.any()) or not bool(seen.any()):
         return None
     low, high = max(1, T // 10), max(2, (9 * T) // 10)
-    shifts = torch.randint(low, high, (n_shifts,), generator=generator, device="cpu").tolist()
+    shifts = torch.randint(low, high, (n_shifts,), generator=generator,
+                           device=generator.device).tolist()
     V = _best_shift(gaps, seen, shifts)
     if not bool(V.any()):
-        perm = torch.randperm(gaps.shape[1], generator=generator, device="cpu").to(gaps.device)
+        perm = torch.randperm(gaps.shape[1], generator=generator,
+                              device=generator.device).to(gaps.device)
         V = _best_shift(gaps[:, perm], seen, shifts)
     cap = max_share * float(seen.sum())
     if float(V.sum()) > cap:
-        order = torch.randperm(V.shape[1], generator=generator, device="cpu").tolist()
+        order = torch.randperm(V.shape[1], generator=generator, device=generator.device).tolist()
         keep = torch.zeros(V.shape[1], dtype=torch.bool, device=V.device)
         total = 0.0
         for j in order:
@@ -265,7 +267,8 @@ class _HALSCP(Solver):
                               "recordings (smooth_cp reached 80 in 3 of 54 table runs)"),
         "eps": Param(1e-2, float, low=0.0,
                      doc="epsilon of Eq. 36: add a component when |nu - nu_old| / nu <= eps "
-                         "(nu = observed squared residual); the authors use 1e-3, which took 3x the sweeps for the same accuracy on CMU 02_01"),
+                         "(nu = observed squared residual); the authors use 1e-3, which took 3x "
+                         "the sweeps for the same accuracy on CMU 02_01"),
         "holdout": Param(True, bool,
                          doc="choose the rank on held-out observed entries (a time-shifted copy "
                              "of the gap pattern) instead of growing to rank_max"),
@@ -284,7 +287,8 @@ class _HALSCP(Solver):
     def _initialize(self) -> None:
         M, Omega = self.M_, self.Omega_
         if M.ndim != 3:
-            raise ValueError(f"{self.name}: expected a third-order tensor (frames x markers x xyz), "
+            raise ValueError(f"{self.name}: expected a third-order tensor "
+                             f"(frames x markers x xyz), "
                              f"found shape {tuple(M.shape)}")
         self.V_ = shifted_gap_holdout(Omega, self.generator_) if self.holdout else None
         self.W_ = Omega & ~self.V_ if self.V_ is not None else Omega     # training entries
@@ -296,17 +300,18 @@ class _HALSCP(Solver):
         self.val_history_: list[tuple[int, float]] = []
         self.nu_ = math.inf
         self.inner_steps_ = 0
-        lam, factors = [], []
         E = self.X_
         T, J, K = M.shape
-        self.cp_ = CPTensor(M.new_zeros(0), [M.new_zeros(T, 0), M.new_zeros(J, 0), M.new_zeros(K, 0)])
+        self.cp_ = CPTensor(M.new_zeros(0),
+                            [M.new_zeros(T, 0), M.new_zeros(J, 0), M.new_zeros(K, 0)])
         for _ in range(min(self.rank, self.rank_max)):
             self._add_component(E)
             E = self.X_ - self.model()
 
     def _interp(self, W: Tensor) -> Tensor:
         shape = self.M_.shape
-        return ops.interp_linear(self.M_.reshape(shape[0], -1), W.reshape(shape[0], -1)).reshape(shape)
+        filled = ops.interp_linear(self.M_.reshape(shape[0], -1), W.reshape(shape[0], -1))
+        return filled.reshape(shape)
 
     @property
     def rank_(self) -> int:
@@ -383,13 +388,15 @@ class _HALSCP(Solver):
         """The fit at this rank has stalled: score it on the hold-out, then grow (Eq. 36)."""
         if self.searching_:
             V = self.V_
-            err = float(torch.where(V, self.M_ - Y, torch.zeros((), dtype=Y.dtype)).norm()
+            zero = torch.zeros((), dtype=Y.dtype, device=Y.device)
+            err = float(torch.where(V, self.M_ - Y, zero).norm()
                         / V.sum().sqrt())
             info["holdout_rmse"] = err
             self.val_history_.append((self.rank_, err))
             # better only by a clear margin: min_gain relative, 1e-9 absolute (unit-variance data)
             if self.best_ is None or err + 1e-9 < (1.0 - self.min_gain) * self.best_[0]:
-                self.best_ = (err, self.rank_, {k: v.clone() for k, v in self.cp_.state_dict().items()})
+                state = {k: v.clone() for k, v in self.cp_.state_dict().items()}
+                self.best_ = (err, self.rank_, state)
                 self.bad_ = 0
             else:
                 self.bad_ += 1
@@ -510,8 +517,10 @@ class SparseCP(_RegularizedCP):
     params = {
         "alpha": Param(0.003, float, low=0.0,
                        doc="alpha_n: the l1 threshold as a fraction of the column's RMS entry; "
-                           "0.01 and above degraded CMU 02_01 fills (see experiments/results/cp.md)"),
-        "alpha_modes": Param((1,), (tuple, list), doc="modes that carry the l1 prior (default: markers)"),
+                           "0.01 and above degraded CMU 02_01 fills "
+                           "(see experiments/results/cp.md)"),
+        "alpha_modes": Param((1,), (tuple, list),
+                             doc="modes that carry the l1 prior (default: markers)"),
         "subgradient": Param(False, bool,
                              doc="literal Eq. 35 (subgradient) instead of the proximal step"),
     }
