@@ -61,7 +61,11 @@ def _error_by(cfg, rows, out_dir, runs_dir, order, metric):
             if not xs:
                 continue
             vals = [np.array([_num(r[metric]) for r in sel if r[x] == v]) for v in xs]
-            ax.errorbar([float(v) for v in xs], [v.mean() for v in vals],
+            pos = [_num(v) for v in xs]
+            if any(np.isnan(pos)):                       # a categorical grid key
+                pos = list(range(len(xs)))
+                ax.set_xticks(pos, xs)
+            ax.errorbar(pos, [v.mean() for v in vals],
                         yerr=[v.std(ddof=1) if len(v) > 1 else 0 for v in vals], marker="o",
                         ms=3, capsize=2, label=method)
         ax.set_title(Path(rec).stem, fontsize=9)

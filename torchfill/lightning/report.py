@@ -113,9 +113,10 @@ def write_report(cfg: Config, rows: list[dict], out_dir: Path, runs_dir: Path, *
         parts += [f"- {n}" for n in notes] + [""]
     if skipped:
         parts += [f"Methods listed but not registered (skipped): {', '.join(skipped)}.", ""]
+    columns = order if column == "method" else sorted({r[column] for r in ok}, key=_sort_key)
     for metric in metric_list:
         parts += [f"## {LABELS.get(metric, metric)}", "",
-                  table_markdown(rows, by, column, metric, order, digits), ""]
+                  table_markdown(rows, by, column, metric, columns, digits), ""]
     parts += ["## Time per case", "", timing_markdown(rows, order), ""]
     if failed:
         parts += ["## Failed cases", ""]

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import csv
-import datetime as _dt
 import functools
 import multiprocessing
 import os
