@@ -76,7 +76,7 @@ def main():
 
     print("\n== scaling with the number of frames (tiled bd + mm), tucker_tnn / tucker ==")
     tiled = np.concatenate([bd, mm], axis=0)
-    for T in (1000, 2000, 4000, 6000, 8500):
+    for T in (1000, 2000, 4000, 8500):
         P = tiled[:T]
         mk = gaps.multi_gap(T, P.shape[1], n_markers=20, gap_length=100, max_gaps=5, seed=0)
         line = [f"T={T:5d}"]

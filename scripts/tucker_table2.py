@@ -63,7 +63,12 @@ def main(argv=None) -> None:
     ap.add_argument("--param", action="append", default=[],
                     help="method.key=value (python literal), e.g. tucker_tnn.lam=0.02")
     ap.add_argument("--out", default=None, help="CSV of every run")
+    ap.add_argument("--markdown", nargs="+", default=None, metavar="CSV",
+                    help="only print the markdown tables of earlier runs' CSVs")
     args = ap.parse_args(argv)
+    if args.markdown:
+        print(markdown(args.markdown))
+        return
     params: dict[str, dict] = {m: {} for m in args.methods}
     for item in args.param:
         key, value = item.split("=", 1)
@@ -104,6 +109,50 @@ def summarize(rows) -> None:
         by[r["method"]].append(r["rmse"])
     print("mean RMSE (all entries) per method:",
           {m: round(float(np.mean(v)), 3) for m, v in by.items()})
+
+
+def markdown(paths) -> str:
+    """Seed-averaged tables (RMSE, AvE, STD over all entries; RMSE on missing entries), the mean
+    over settings, and the blow-up check (worst seed / median seed per setting)."""
+    import collections
+    rows = []
+    for path in paths:
+        with open(path) as fh:
+            rows += list(csv.DictReader(fh))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    cell = collections.defaultdict(list)
+    for r in rows:
+        cell[(r["recording"], int(r["gap_length"]), int(r["max_gaps"]), r["method"])].append(r)
+    complete = lambda k: all(cell.get((*k, m)) for m in methods)  # noqa: E731
+    settings = sorted({k[:3] for k in cell if complete(k[:3])})
+    out = []
+    for metric in ("rmse", "ave", "std", "rmse_missing"):
+        out.append(f"\n**{metric}** (mm, mean over seeds)\n")
+        out.append("| recording | gap | max gaps | " + " | ".join(methods) + " |")
+        out.append("|---|---|---|" + "---|" * len(methods))
+        means = collections.defaultdict(list)
+        for rec, L, K in settings:
+            vals = []
+            for m in methods:
+                v = [float(r[metric]) for r in cell[(rec, L, K, m)]]
+                means[m].append(np.mean(v))
+                vals.append(f"{np.mean(v):.2f}")
+            out.append(f"| {rec.replace('_120.c3d', '')} | {L} | {K} | " + " | ".join(vals) + " |")
+        out.append("| **mean** | | | " + " | ".join(f"**{np.mean(means[m]):.2f}**" for m in methods) + " |")
+    out.append("\n**Blow-up check** (worst seed RMSE / median seed RMSE, largest over settings)\n")
+    out.append("| method | worst/median | seeds per setting |")
+    out.append("|---|---|---|")
+    for m in methods:
+        ratios, n = [], 0
+        for rec, L, K in settings:
+            v = [float(r["rmse"]) for r in cell[(rec, L, K, m)]]
+            n = len(v)
+            ratios.append(max(v) / max(np.median(v), 1e-12))
+        out.append(f"| {m} | {max(ratios):.2f} | {n} |")
+    secs = {m: np.mean([float(r["seconds"]) for r in rows if r["method"] == m]) for m in methods}
+    out.append("\nMean seconds per fill (under load, 1 thread): " +
+               ", ".join(f"{m} {v:.2f}" for m, v in secs.items()))
+    return "\n".join(out)
 
 
 if __name__ == "__main__":
