@@ -2,6 +2,7 @@
 T x 3J unfolding, and how total time grows with the number of frames (1000 -> 8500).
 
     .venv/bin/python scripts/bench_tucker.py            # run twice, report the best
+    .venv/bin/python scripts/bench_tucker.py --sizes    # without the scaling part
 
 Recordings are tiled in time (hdm05_bd_05-01_01_120 followed by hdm05_mm_01-02_03_120) to reach
 8500 frames; gaps: multi_gap, 20 markers x 100 frames x up to 5 gaps, seed 0.
@@ -42,6 +43,11 @@ def fill(method, P, mask, **params):
 
 
 def main():
+    import argparse
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", nargs="*", type=int, default=[1000, 2000, 4000, 8500],
+                    help="frame counts for the scaling part (none to skip it)")
+    args = ap.parse_args()
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}")
     bd = load("hdm05_bd_05-01_01_120.c3d")
     mm = load("hdm05_mm_01-02_03_120.c3d")
@@ -76,7 +82,7 @@ def main():
 
     print("\n== scaling with the number of frames (tiled bd + mm), tucker_tnn / tucker ==")
     tiled = np.concatenate([bd, mm], axis=0)
-    for T in (1000, 2000, 4000, 8500):
+    for T in args.sizes:
         P = tiled[:T]
         mk = gaps.multi_gap(T, P.shape[1], n_markers=20, gap_length=100, max_gaps=5, seed=0)
         line = [f"T={T:5d}"]
