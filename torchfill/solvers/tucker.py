@@ -69,11 +69,8 @@ def project(X: Tensor, A: Sequence[Tensor], skip: int | None = None) -> Tensor:
 
 
 def hosvd(X: Tensor, rank: Sequence[int]) -> tuple[Tensor, list[Tensor]]:
-    """Truncated higher-order SVD: leading left singular vectors of each unfolding, core by projection.
-
-    The left singular vectors of ``X_(n)`` are the eigenvectors of the small Gram ``X_(n) X_(n)^T``
-    for the short modes; for the long time mode we use the SVD of the tall unfolding.
-    """
+    """Truncated higher-order SVD: leading left singular vectors of each unfolding (through
+    TensorLy's ``unfold``), core by projection. Used once, for the start."""
     A = []
     for n, Rn in enumerate(rank):
         U = torch.linalg.svd(ops.unfold(X, n), full_matrices=False).U
