@@ -87,7 +87,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         solver = get_solver(method, **params)
         Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
         start = time.perf_counter()
-        filled = _run(solver, Xk, missing[:, keep], progress)
+        filled = solver.fit(Xk, missing[:, keep], callback=progress).transform(Xk)
         info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
@@ -95,16 +95,6 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info)
-
-
-def _run(solver, X: torch.Tensor, missing: torch.Tensor, progress) -> torch.Tensor:
-    """The solver's own loop (``fit``), with a progress hook on every iteration."""
-    solver.initialize(X, missing)
-    while not solver.converged_ and solver.n_iter_ < solver.max_iter:
-        record = solver.step_and_record()
-        if progress is not None:
-            progress(record)
-    return solver.transform(X)
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:

@@ -370,11 +370,6 @@ class _GradientFit(Solver):
         old, new = min(L[:-self.patience]), min(L[-self.patience:])
         return old - new <= self.tol * abs(old)
 
-    def fit(self, X: Tensor, mask: Tensor | None = None) -> "_GradientFit":
-        super().fit(X, mask)
-        self.finalize()
-        return self
-
     def finalize(self) -> None:
         """End of fit: restore the best held-out iterate (if any), drop the optimizer state and any
         parametrization, so that ``model_`` is a plain TuckerTensor / CPTensor."""

@@ -7,6 +7,7 @@ Every filler is a ``torch.nn.Module`` with keyword-only hyperparameters, ``fit(X
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -173,12 +174,23 @@ class Solver(nn.Module):
         return ops.interp_linear(M, self.Omega_.reshape(shape[0], -1)).reshape(shape)
 
     # -- the loop ------------------------------------------------------------------------------
-    def fit(self, X: Tensor, mask: Tensor | None = None) -> "Solver":
-        """Fit on ``X`` (NaN = missing, and/or ``mask`` True = missing); returns ``self``."""
+    def fit(self, X: Tensor, mask: Tensor | None = None, *,
+            callback: Callable[[dict[str, float]], None] | None = None) -> "Solver":
+        """Fit on ``X`` (NaN = missing, and/or ``mask`` True = missing); returns ``self``.
+
+        ``callback``, if given, receives every iteration's history record (progress display).
+        """
         self.initialize(X, mask)
         while not self.converged_ and self.n_iter_ < self.max_iter:
-            self.step_and_record()
+            record = self.step_and_record()
+            if callback is not None:
+                callback(record)
+        self.finalize()
         return self
+
+    def finalize(self) -> None:
+        """End of a fit (after the last ``step``): solvers that keep a best iterate or helper state
+        restore or drop it here. Whoever drives ``step()`` by hand (the Lightning runner) calls it."""
 
     def step_and_record(self) -> dict[str, float]:
         """One :meth:`step`, its diagnostics appended to ``history_``, the stopping rule applied."""
