@@ -27,20 +27,8 @@ DATA = Path(os.environ.get("TORCHFILL_DATA", ROOT / ".." / "shared" / "data"))
 
 
 def load(name: str) -> np.ndarray:
-    """(T, J, 3) points of a C3D in ``DATA``, labels starting with '*' dropped."""
-    path = DATA / (name if name.endswith(".c3d") else name + ".c3d")
-    if hasattr(torchfill, "read"):
-        try:
-            seq = torchfill.read(path)
-            keep = [i for i, lab in enumerate(seq.labels) if not str(lab).startswith("*")]
-            return np.asarray(seq.points, dtype=np.float64)[:, keep]
-        except Exception:  # noqa: BLE001 - fall back to ezc3d while the reader lands
-            pass
-    import ezc3d
-    c = ezc3d.c3d(str(path))
-    labels = c["parameters"]["POINT"]["LABELS"]["value"]
-    keep = [i for i, lab in enumerate(labels) if not lab.startswith("*")]
-    return np.transpose(c["data"]["points"][:3], (2, 1, 0))[:, keep].astype(np.float64)
+    """(T, J, 3) points of a C3D in ``DATA`` (the reader drops HDM05's `*` copies)."""
+    return torchfill.read(DATA / (name if name.endswith(".c3d") else name + ".c3d")).points
 
 
 def run(truth: np.ndarray, method: str, mask: np.ndarray, **params) -> tuple[dict, float, object]:

@@ -41,15 +41,8 @@ def data_dir() -> Path:
 
 
 def load(path: Path) -> np.ndarray:
-    """Points (T, J, 3) of a recording (``torchfill.read``; ezc3d if the reader is unavailable)."""
-    try:
-        return np.asarray(torchfill.read(path).points, dtype=np.float64)
-    except Exception:                                   # pragma: no cover - fallback only
-        import ezc3d
-        c = ezc3d.c3d(str(path))
-        labels = c["parameters"]["POINT"]["LABELS"]["value"]
-        P = c["data"]["points"][:3].transpose(2, 1, 0).astype(np.float64)
-        return P[:, [i for i, lab in enumerate(labels) if not lab.startswith("*")]]
+    """Points (T, J, 3) of a recording."""
+    return torchfill.read(path).points
 
 
 def run_one(truth: np.ndarray, mask: np.ndarray, method: str) -> tuple[float, float, int]:

@@ -28,19 +28,10 @@ HDM = ["hdm05_mm_01-02_03_120.c3d", "hdm05_bd_05-01_01_120.c3d"]
 
 
 def load(name: str) -> np.ndarray:
-    """(T, J, 3) float64 marker positions; labels starting with '*' (HDM05 duplicates) dropped."""
-    try:
-        from torchfill import read
-        seq = read(DATA / name)
-        keep = [i for i, lab in enumerate(seq.labels) if not lab.startswith("*")]
-        return np.asarray(seq.points, dtype=np.float64)[:, keep]
-    except Exception:
-        import ezc3d
-        c = ezc3d.c3d(str(DATA / name))
-        labels = c["parameters"]["POINT"]["LABELS"]["value"]
-        keep = [i for i, lab in enumerate(labels) if not lab.startswith("*")]
-        P = c["data"]["points"][:3, keep, :].transpose(2, 1, 0).astype(np.float64)
-        return P
+    """(T, J, 3) float64 marker positions (the reader drops HDM05's `*` copies)."""
+    from torchfill import read
+
+    return read(DATA / name).points
 
 
 def run_one(method: str, points: np.ndarray, mask: np.ndarray, params: dict) -> tuple[np.ndarray, float, object]:

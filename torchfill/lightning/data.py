@@ -44,28 +44,10 @@ class Recording:
 
 
 def read_sequence(path: Path) -> MarkerSequence:
-    """``torchfill.read``; falls back to ezc3d for C3D while the I/O modules are landing."""
+    """The recording at ``path``, through ``torchfill.read``."""
     from .. import io
 
-    try:
-        return io.read(path)
-    except ModuleNotFoundError:                 # torchfill.io.c3d not there yet
-        if Path(path).suffix.lower() != ".c3d":
-            raise
-        return _read_c3d_ezc3d(Path(path))
-
-
-def _read_c3d_ezc3d(path: Path) -> MarkerSequence:
-    import ezc3d
-
-    c3d = ezc3d.c3d(str(path))
-    points = np.asarray(c3d["data"]["points"][:3], dtype=np.float64).transpose(2, 1, 0)  # T, J, 3
-    point = c3d["parameters"]["POINT"]
-    labels = list(point["LABELS"]["value"])[: points.shape[1]]
-    keep = [j for j, label in enumerate(labels) if not label.startswith("*")]
-    return MarkerSequence(points[:, keep], [labels[j] for j in keep],
-                          rate=float(point["RATE"]["value"][0]),
-                          units=str(point["UNITS"]["value"][0]), source=path)
+    return io.read(path)
 
 
 @functools.lru_cache(maxsize=16)

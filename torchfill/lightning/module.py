@@ -61,6 +61,11 @@ class SolverModule(pl.LightningModule):
         self.solve_seconds += time.perf_counter() - start
         return None
 
+    def on_train_end(self) -> None:
+        """The solver's end-of-fit hook (e.g. restoring a held-out best iterate), as ``fit`` does."""
+        if self.initialized:
+            self.solver.finalize()
+
     def filled(self) -> torch.Tensor:
         """The incomplete input with its gaps filled by the current estimate."""
         return self.solver.transform(self.X_obs)
