@@ -39,6 +39,7 @@ import torch
 from .. import ops
 from .base import Param, Solver, register
 from .factorized import TuckerTensor
+from .holdout import shifted_gap_holdout
 
 Tensor = torch.Tensor
 
@@ -277,6 +278,13 @@ def _median_gap(missing: Tensor) -> int:
 # ---------------------------------------------------------------------------------------------
 # Solvers
 # ---------------------------------------------------------------------------------------------
+def _eps_list(value, owner: str) -> list[float]:
+    values = [float(v) for v in (value if isinstance(value, (tuple, list)) else [value])]
+    if not values or any(not v >= 0 for v in values):
+        raise ValueError(f"{owner}: eps expected a float >= 0 or a list of them, found {value!r}")
+    return values
+
+
 def _triple(value, name: str, owner: str, cast=int) -> list:
     vals = [value] * 3 if isinstance(value, (int, float)) else list(value)
     if len(vals) != 3:
@@ -310,7 +318,7 @@ class Tucker(Solver):
 
     name = "tucker"
     params = {
-        "max_iter": Param(500, int, low=1, doc="iteration cap (search + refinement)"),
+        "max_iter": Param(800, int, low=1, doc="iteration cap (search over the eps schedules + refinement)"),
         "tol": Param(1e-4, float, low=0.0,
                      doc="refinement stops when the relative change of X is below (chosen: time vs accuracy)"),
         "rank": Param((8, 8, 3), (int, tuple, list),
@@ -323,11 +331,20 @@ class Tucker(Solver):
         "rho_g": Param(0.1, float, low=0.0, doc="proximal weight of the core (Eq. 18)"),
         "rho_x": Param(0.1, float, low=0.0, doc="proximal weight of the recovered tensor (Eq. 19)"),
         "alpha": Param(1e-3, (float, tuple, list), doc="alpha_n, ridge on the factors (Eq. 17), one or three"),
-        "eps": Param(1e-2, float, low=0.0,
-                     doc="rank increase when |1 - r_k / r_{k-1}| <= eps (Eq. 31), r = observed residual"),
+        "eps": Param((1e-2, 1e-4), (float, tuple, list),
+                     doc="rank increase when |1 - r_k / r_{k-1}| <= eps (Eq. 31), r = observed residual. "
+                         "Several values: the rank schedule runs once per value from the same start and "
+                         "the held-out data choose (1e-2 suits long recordings with scattered gaps, 1e-4 "
+                         "many markers missing at once in short ones, e.g. cmu_02_01)"),
         "selection": Param("holdout", str, choices=("holdout", "last"),
                            doc="'holdout': rank/iterate chosen on held-out observed segments; "
                                "'last': the paper's schedule, last iterate"),
+        "holdout": Param("shifted_gaps", str, choices=("shifted_gaps", "segments"),
+                         doc="validation data: 'shifted_gaps' = the recording's own gap pattern moved "
+                             "in time onto observed samples (same markers, lengths, simultaneity; "
+                             "falls back to segments); 'segments' = single-marker observed runs"),
+        "holdout_share": Param(0.05, float, low=0.0, high=1.0, low_open=True,
+                               doc="at most this share of observed samples is held out (shifted_gaps)"),
         "val_segments": Param(12, int, low=1, doc="number of held-out observed segments"),
         "val_length": Param(None, int, low=1, allow_none=True,
                             doc="frames per held-out segment (None: median length of the data's gaps)"),
@@ -348,10 +365,16 @@ class Tucker(Solver):
         self.rank_max_ = R_max
         self.delta_rank_ = _triple(self.delta_rank, "delta_rank", self.name)
         self.alpha_ = _triple(self.alpha, "alpha", self.name, float)
+        self.eps_candidates_ = _eps_list(self.eps, self.name)
+        self.eps_ = self.eps_candidates_[0]
+        self.R0_ = R0
         # validation segments: hidden from the fit during the search phase
         if self.selection == "holdout":
-            self.holdout_ = holdout_segments(self.Omega_, self.val_segments, self.val_length,
-                                             self.generator_)
+            V = None
+            if self.holdout == "shifted_gaps":
+                V = shifted_gap_holdout(self.Omega_, self.generator_, max_share=self.holdout_share)
+            self.holdout_ = V if V is not None else holdout_segments(
+                self.Omega_, self.val_segments, self.val_length, self.generator_)
         else:
             self.holdout_ = torch.zeros_like(self.Omega_)
         self.searching_ = bool(self.holdout_.any())
@@ -361,6 +384,8 @@ class Tucker(Solver):
         self.best_ = None
         self.best_val_ = math.inf
         self.best_iter_ = 0
+        self.schedule_best_ = (math.inf, 0)
+        self.rank_max_full_ = list(self.rank_max_)
         self.phase_iter_ = 0
 
     def _start(self, R: Sequence[int]) -> None:
@@ -389,7 +414,7 @@ class Tucker(Solver):
             r = self._observed_residual(Y)
             change = abs(1.0 - r / self.residual_) if self.residual_ > 0 else 0.0
             grown = False
-            if change <= self.eps:                                            # Eq. 31
+            if change <= self.eps_:                                           # Eq. 31
                 A, grown = increase_rank(A, self.rank_max_, self.delta_rank_, self.generator_)
                 if grown:
                     G = project(X, A)                                         # Eq. 32, core recomputed
@@ -409,16 +434,32 @@ class Tucker(Solver):
         if not self.searching_:
             return info["delta"] < self.tol
         val = info["val_rmse"]
-        if val < self.best_val_:
+        if val < self.best_val_:                      # best over all schedules: restored at the end
             self.best_val_, self.best_iter_ = val, self.n_iter_
             self.best_ = (self.X_.clone(), self.tucker_.core.clone(),
                           [a.clone() for a in self.tucker_.factors], self.residual_)
+        if val < self.schedule_best_[0]:              # best of this schedule: drives the patience
+            self.schedule_best_ = (val, self.n_iter_)
         ranks_done = all(a.shape[1] >= m for a, m in zip(self.tucker_.factors, self.rank_max_))
-        stalled = self.n_iter_ - self.best_iter_ >= self.patience
+        stalled = self.n_iter_ - self.schedule_best_[1] >= self.patience
         converged = ranks_done and info["delta"] < self.tol
-        if stalled or converged or self.n_iter_ >= self.max_iter - 1:
+        if self.n_iter_ >= self.max_iter - 1:
             self._end_search()
+        elif stalled or converged:
+            if len(self.eps_candidates_) > 1:
+                self._next_schedule()
+            else:
+                self._end_search()
         return False
+
+    def _next_schedule(self) -> None:
+        """Run the rank schedule again from the same start with the next ``eps``; the best
+        validation error over all schedules is what ``_end_search`` restores."""
+        self.eps_candidates_ = self.eps_candidates_[1:]
+        self.eps_ = self.eps_candidates_[0]
+        self.rank_max_ = list(self.rank_max_full_)
+        self.schedule_best_ = (math.inf, self.n_iter_)
+        self._start(self.R0_)
 
     def _end_search(self) -> None:
         """Restore the iterate with the best validation error, give the held-out data back,
