@@ -13,11 +13,13 @@ What differs from the authors' code, and why (all of it uses observed data only)
   (the authors start from random factors, which leaves some markers hundreds of mm off).
 * The authors keep the iterate with the best error against the ground truth; we may not. The
   error on the missing entries first falls then rises as the ranks grow, so the rank/iterate is
-  chosen on a **validation set of observed data**: a few observed gap-shaped segments (same length
-  as the recording's own gaps) are hidden from the fit while the rank schedule runs; the iterate
-  with the smallest error on them is restored, the segments are given back, and the fit continues
-  at that rank until it converges (``selection="holdout"``, the default). ``selection="last"``
-  runs the paper's schedule and returns the last iterate (the honest version of the paper).
+  chosen on a **validation set of observed data**: the recording's own gap pattern, moved in
+  time onto observed samples (same markers, lengths and simultaneity; at most 5 % of the
+  observed samples; ``holdout="segments"`` uses single-marker observed runs instead), is hidden
+  from the fit while the rank schedule runs, once for each ``eps`` (1e-2, then 1e-4, from the
+  same start); the iterate with the smallest error on it is restored, the data are given back,
+  and the fit continues at that rank until it converges (``selection="holdout"``, the default).
+  ``selection="last"`` runs the paper's schedule and returns the last iterate.
 * The nuclear-norm sub-problem (Eq. 24) has a closed form, ``D_{lam/(1+rho_x)}((Z + rho_x X_k) /
   (1+rho_x))``; it is the default. The paper's accelerated proximal gradient (Algorithm 1) is
   available as ``x_step="apg"`` and converges to the same point (tested).
@@ -310,6 +312,11 @@ class Tucker(Solver):
     cmu_02_01, where plain interpolation left an edge gap 446 mm off (now 12 mm). ``rho_a``
     follows the paper's code; ``rho_g``, ``rho_x``, ``eps``, ``rank``, ``delta_rank``,
     ``patience`` and ``val_segments`` were set by hand (not tuned) for a ~100-iteration search.
+    The shifted-gap hold-out (cap 5 % vs 10 %) and the two ``eps`` schedules were then chosen on
+    nine cases (cmu_02_01 shared windows 10x100 and 20x50 and multi-gap 20x100x5, cmu_85_02 10x50,
+    the first 1500 frames of hdm05_mm with 20x200x5, and four full-length HDM05 multi-gap cases):
+    mean tucker_tnn RMSE 9.8 -> 2.5 mm, the short shared-window cases 29 -> 2 mm, the HDM05 cases
+    at most 14 % worse, about twice the time.
 
     References
     ----------
