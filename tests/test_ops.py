@@ -100,12 +100,9 @@ def test_svt_is_prox_of_nuclear_norm():
         assert obj(X) <= obj(X + 1e-3 * rand(10, 8, seed=100 + seed)) + 1e-12
 
 
-def test_orthonormalize_and_first_difference():
+def test_orthonormalize():
     Q = ops.orthonormalize(rand(20, 4, seed=18))
     torch.testing.assert_close(Q.T @ Q, torch.eye(4, dtype=torch.float64))
-    D = ops.first_difference(5)
-    x = torch.tensor([1.0, 4.0, 9.0, 16.0, 25.0], dtype=torch.float64)
-    torch.testing.assert_close(D @ x, torch.tensor([3.0, 5.0, 7.0, 9.0], dtype=torch.float64))
 
 
 # -- interp_linear -------------------------------------------------------------------------------

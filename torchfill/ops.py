@@ -75,15 +75,6 @@ def orthonormalize(A: Tensor) -> Tensor:
     return torch.linalg.qr(A, mode="reduced").Q
 
 
-def first_difference(n: int, *, dtype=torch.float64, device=None) -> Tensor:
-    """First-difference operator ``D`` of shape ``(n-1, n)``: ``(D x)_t = x_{t+1} - x_t``."""
-    D = torch.zeros(n - 1, n, dtype=dtype, device=device)
-    idx = torch.arange(n - 1, device=device)
-    D[idx, idx] = -1.0
-    D[idx, idx + 1] = 1.0
-    return D
-
-
 def interp_linear(M: Tensor, observed: Tensor) -> Tensor:
     """Linear interpolation of every column of ``M`` (T x N) along time over its unobserved rows.
 
