@@ -195,8 +195,12 @@ def _say(args, text: str) -> None:
         print(text, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
 
 
+def _shows_progress(args) -> bool:
+    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+
+
 def _progress(args):
-    if getattr(args, "quiet", False) or not sys.stderr.isatty():
+    if not _shows_progress(args):
         return None
     start = time.perf_counter()
 
@@ -208,7 +212,7 @@ def _progress(args):
 
 
 def _clear_progress(args) -> None:
-    if _progress(args) is not None:
+    if _shows_progress(args):
         print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
 
 
