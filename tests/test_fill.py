@@ -10,7 +10,7 @@ import torch
 
 import torchfill
 from torchfill import gaps, metrics
-from torchfill.fill import UnfilledWarning
+from torchfill import UnfilledWarning
 
 
 def walk(T: int = 80, J: int = 5, seed: int = 0) -> np.ndarray:

@@ -5,10 +5,10 @@
 >>> out = torchfill.fill(seq, method="tucker_tnn")
 >>> torchfill.write(out, "trial_filled.c3d")
 """
-from .fill import default_method, fill, methods
+from .filling import UnfilledWarning, default_method, fill, methods
 from .io import FileFormatError, read, write
 from .metrics import score
 from .sequence import MarkerSequence
 
 __version__ = "0.1.0"
-__all__ = ["FileFormatError", "MarkerSequence", "default_method", "fill", "methods", "read", "score", "write"]
+__all__ = ["FileFormatError", "UnfilledWarning", "MarkerSequence", "default_method", "fill", "methods", "read", "score", "write"]
