@@ -262,11 +262,20 @@ def strings(lay: Layout, key: str) -> list[str]:
     if p is None or p.type != -1:
         return []
     if not p.dims:
-        return [p.data.decode("latin-1").strip(" \x00")]
+        return [_text(p.data)]
     width = p.dims[0]
     raw = p.data
-    return [raw[i:i + width].decode("latin-1").strip(" \x00")
-            for i in range(0, len(raw), width)] if width else []
+    return [_text(raw[i:i + width]) for i in range(0, len(raw), width)] if width else []
+
+
+def _text(raw: bytes) -> str:
+    """A C3D string: UTF-8 when it decodes as such (torchfill and ezc3d write UTF-8), else
+    Latin-1 (older files); spaces and NULs stripped."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.strip(" \x00")
 
 
 def _frame_range(lay: Layout, first: int, last: int) -> tuple[int, int]:
@@ -547,6 +556,36 @@ def _encode(lay: Layout, xyz: np.ndarray) -> tuple[np.ndarray, object]:
     return q.astype(np.int16), np.int16(0)
 
 
+#: C3D dimensions are single bytes: at most 255 strings per parameter, 255 bytes per string.
+_C3D_MAX = 255
+
+
+def _label_params(labels: list[str], path: Path) -> list[tuple[str, str, bytes, list[int]]]:
+    """POINT:LABELS (and LABELS2, LABELS3, ... beyond 255 markers, the C3D convention) and
+    DESCRIPTIONS likewise, as UTF-8 strings padded to a common byte width. Labels longer than
+    255 bytes are cut (one warning names them)."""
+    encoded, cut = [], []
+    for label in labels:
+        raw = label.encode("utf-8")
+        if len(raw) > _C3D_MAX:
+            raw = raw[:_C3D_MAX].decode("utf-8", "ignore").encode("utf-8")
+            cut.append(label)
+        encoded.append(raw)
+    if cut:
+        warnings.warn(f"{path.name}: {len(cut)} label(s) longer than {_C3D_MAX} bytes cut to fit "
+                      f"C3D: {', '.join(repr(c[:20] + '...') for c in cut[:5])}", stacklevel=4)
+    params = []
+    for k, at in enumerate(range(0, max(len(encoded), 1), _C3D_MAX)):
+        chunk = encoded[at:at + _C3D_MAX]
+        width = max((len(raw) for raw in chunk), default=1) or 1
+        suffix = str(k + 1) if k else ""
+        params.append((f"LABELS{suffix}", "Point labels.",
+                       b"".join(raw.ljust(width) for raw in chunk), [width, len(chunk)]))
+        params.append((f"DESCRIPTIONS{suffix}", "Point descriptions.", b" " * len(chunk),
+                       [1, len(chunk)]))
+    return params
+
+
 def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     """A new float-format C3D (Intel) holding only the markers, via ``c3d.Writer``."""
     import c3d as c3d_package
@@ -555,7 +594,9 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     labels = seq.labels or default_labels(J)
     writer = c3d_package.Writer(point_rate=float(seq.rate), analog_rate=0.0, point_scale=-1.0,
                                 point_units=seq.units or "mm")
-    writer.set_point_labels(labels)
+    for name, desc, data, dims in _label_params(labels, path):
+        writer.point_group.add_param(name, desc=desc, bytes_per_element=-1, bytes=data,
+                                     dimensions=dims)
     first = int(seq.meta.get("first_frame", 1) or 1)
     writer.set_start_frame(max(first, 1))
     valid = np.isfinite(seq.points).all(axis=2)

@@ -58,8 +58,9 @@ def _split_lines(text: str) -> list[str]:
 class _Parsed:
     """A TRC file split into header lines and data lines, plus what the header says."""
 
-    def __init__(self, path: Path, text: str):
+    def __init__(self, path: Path, text: str, encoding: str = "utf-8"):
         self.path = path
+        self.encoding = encoding
         self.lines = _split_lines(text)
         if not text.strip():
             _fail(path, "empty file")
@@ -147,7 +148,10 @@ def _load(path: Path) -> _Parsed:
         raise FileFormatError(f"{path}: cannot read ({err.strerror or err})") from None
     if b"\x00" in raw[:4096]:
         _fail(path, "not a TRC file (binary content)")
-    return _Parsed(path, raw.decode("latin-1"))
+    try:
+        return _Parsed(path, raw.decode("utf-8"), "utf-8")
+    except UnicodeDecodeError:                 # older files: Latin-1 (every byte decodes)
+        return _Parsed(path, raw.decode("latin-1"), "latin-1")
 
 
 def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> MarkerSequence:
@@ -203,7 +207,7 @@ def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
         if len(parsed.data_lines) == seq.n_frames and parsed.labels == seq.labels:
             return _write_back(seq, path, parsed, decimals)
     text = _fresh_text(seq, path, 6 if decimals is None else decimals)
-    atomic_write(path, lambda handle: handle.write(text.encode("latin-1", "replace")))
+    atomic_write(path, lambda handle: handle.write(text.encode("utf-8")))
 
 
 def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int | None) -> None:
@@ -228,7 +232,7 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
                 cells[2 + 3 * j + k] = f"{seq.points[t, j, k]:.{places}f}"
         lines[i] = "\t".join(cells) + ending
     text = "".join(lines)
-    atomic_write(path, lambda handle: handle.write(text.encode("latin-1")))
+    atomic_write(path, lambda handle: handle.write(text.encode(parsed.encoding)))
 
 
 def _decimals(cells: list[str]) -> int:
