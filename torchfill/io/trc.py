@@ -211,13 +211,18 @@ def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
 
 
 def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int | None) -> None:
-    _, _, src = parsed.table()
+    _, _, cells_in = parsed.table()
+    src = cells_in.copy()
     src[(src == 0).all(axis=2)] = np.nan
     filled = filled_samples(seq, np.isfinite(src).all(axis=2), path)
     edits = unwritten_edits(seq, src, filled)
     if edits:
         warnings.warn(f"{path.name}: {edits} sample(s) differ from {parsed.path.name} but were "
                       "not filled; only filled samples are written back", stacklevel=4)
+    # a partly missing sample keeps its observed cells byte for byte; a whole sample marked
+    # filled although valid in the source (fill(mask=...)) or a (0, 0, 0) dead marker is rewritten
+    partial = ~np.isfinite(cells_in).all(axis=2) & np.isfinite(cells_in).any(axis=2)
+    rewrite = ~(partial[..., None] & np.isfinite(cells_in))
     J = seq.n_markers
     lines = list(parsed.lines)
     for t in np.flatnonzero(filled.any(axis=1)):
@@ -228,11 +233,22 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
         places = decimals if decimals is not None else _decimals(cells[2:])
         cells += [""] * (2 + 3 * J - len(cells))
         for j in np.flatnonzero(filled[t]):
-            for k in range(3):
-                cells[2 + 3 * j + k] = f"{seq.points[t, j, k]:.{places}f}"
+            cells[2 + 3 * j:5 + 3 * j] = _sample_cells(cells[2 + 3 * j:5 + 3 * j],
+                                                       seq.points[t, j], rewrite[t, j], places)
         lines[i] = "\t".join(cells) + ending
     text = "".join(lines)
     atomic_write(path, lambda handle: handle.write(text.encode(parsed.encoding)))
+
+
+def _sample_cells(cells: list[str], xyz: np.ndarray, rewrite: np.ndarray, places: int) -> list[str]:
+    """The three cells of a filled sample: rewritten coordinates formatted with ``places``
+    decimals, the others kept. A sample that would read as (0, 0, 0), the dead-marker mark, gets
+    its last rewritten coordinate moved by one unit of the last decimal (towards its sign)."""
+    out = [f"{v:.{places}f}" if r else c for c, v, r in zip(cells, xyz.tolist(), rewrite)]
+    if all(_cell(c) == 0 for c in out):
+        k = int(np.flatnonzero(rewrite)[-1])
+        out[k] = f"{math.copysign(10.0 ** -places, xyz[k] or 1.0):.{places}f}"
+    return out
 
 
 def _decimals(cells: list[str]) -> int:
