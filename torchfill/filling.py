@@ -94,7 +94,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         out[:, keep] = part
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
-    return _as_kind(out, kind, data, info)
+    return _as_kind(out, kind, data, info, missing)
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
@@ -147,14 +147,14 @@ def _as_tensor(data) -> tuple[torch.Tensor, str]:
     return X, kind
 
 
-def _as_kind(out: torch.Tensor, kind: str, data, info: dict):
+def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tensor):
     if kind == "tensor":
         return out
     points = out.cpu().numpy()
     if kind == "array":
         return points
     seq = data.with_points(points)
-    seq.meta["filled"] = data.mask & np.isfinite(points).all(axis=2)
+    seq.meta["filled"] = missing.cpu().numpy() & np.isfinite(points).all(axis=2)  # mask= too
     seq.meta["fill_info"] = info
     return seq
 
