@@ -72,7 +72,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if mask is not None:
         out[mask] = float("nan")
     given = out.clone() if max_gap is not None else None   # the input's own finite coordinates
-    never = missing.all(dim=0)
+    unfit = missing | _huge(points, missing)     # what the solver does not see
+    never = unfit.all(dim=0)
     if bool(never.any()):
         names = _marker_names(data, never)
         warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: {names}",
@@ -85,9 +86,9 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
             params["training"] = _align_training(params["training"], data, keep.tolist(),
                                                  points.shape[1])
         solver = get_solver(method, **params)
-        Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
+        Xk = torch.where(unfit[:, keep, None], torch.nan, points[:, keep])
         start = time.perf_counter()
-        filled = solver.fit(Xk, missing[:, keep], callback=progress).transform(Xk)
+        filled = solver.fit(Xk, unfit[:, keep], callback=progress).transform(Xk)
         info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
@@ -95,6 +96,30 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info, missing)
+
+
+#: An observed coordinate farther than this many spreads (median absolute deviation of all
+#: coordinates) from their median is taken for corrupt: it would dominate the solvers' shared
+#: centring and scaling (at ~1e34 every fill cancels to 0).
+HUGE_SPREADS = 1e6
+
+
+def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
+    """``(T, J)`` observed samples with a coordinate beyond ``HUGE_SPREADS``; they stay in the
+    output as they were but the fit does not see them (one warning says how many)."""
+    seen = points[~missing]
+    if seen.numel() == 0:
+        return torch.zeros_like(missing)
+    med = seen.median()
+    spread = max(float((seen - med).abs().median()), 1e-3 * abs(float(med)), 1e-300)
+    huge = ((points - med).abs() > HUGE_SPREADS * spread).any(dim=2) & ~missing
+    if bool(huge.any()):
+        t, j = (int(i) for i in torch.nonzero(huge)[0])
+        warnings.warn(f"{int(huge.sum())} observed sample(s) with huge coordinates (more than "
+                      f"{HUGE_SPREADS:g} x the data's spread from its median; first: frame {t}, "
+                      f"marker {j}) kept as they are but not used for the fit",
+                      UserWarning, stacklevel=3)
+    return huge
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:

@@ -542,9 +542,20 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     atomic_write(path, lambda handle: handle.write(out))
 
 
+def _off_origin(xyz: np.ndarray, step: float) -> np.ndarray:
+    """``xyz`` with samples at exactly (0, 0, 0) (which read back as missing: the Qualisys gap
+    mark) moved by ``step`` along z, the smallest change the format stores."""
+    zero = (xyz == 0).all(axis=1)
+    if zero.any():
+        xyz = xyz.copy()
+        xyz[zero, 2] = step
+    return xyz
+
+
 def _encode(lay: Layout, xyz: np.ndarray) -> tuple[np.ndarray, object]:
     """Stored words for coordinates ``xyz`` (n, 3) and for a 4th word of 0, in the file's format."""
     if lay.is_float:
+        xyz = _off_origin(xyz.astype(np.float32).astype(np.float64), 1e-30)
         if lay.processor == "dec":
             return _encode_dec(xyz.reshape(-1)).reshape(xyz.shape), np.uint32(0)
         if np.abs(xyz).max(initial=0.0) > np.finfo(np.float32).max:
@@ -553,7 +564,7 @@ def _encode(lay: Layout, xyz: np.ndarray) -> tuple[np.ndarray, object]:
     q = np.rint(xyz / lay.scale)
     if q.size and (q.min() < -32768 or q.max() > 32767):
         raise OverflowError(f"value beyond the int16 range at POINT:SCALE {lay.scale:g}")
-    return q.astype(np.int16), np.int16(0)
+    return _off_origin(q, 1.0).astype(np.int16), np.int16(0)
 
 
 #: C3D dimensions are single bytes: at most 255 strings per parameter, 255 bytes per string.
@@ -602,6 +613,7 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     valid = np.isfinite(seq.points).all(axis=2)
     frames = np.zeros((T, J, 5), dtype=np.float32)
     frames[..., :3] = np.where(valid[..., None], seq.points, 0.0)
+    frames[valid, :3] = _off_origin(frames[valid, :3].astype(np.float64), 1e-30)
     frames[..., 3] = np.where(valid, 0.0, -1.0)
     analog = np.zeros((0, 1), dtype=np.float32)
     writer.add_frames([(frames[t], analog) for t in range(T)])
