@@ -17,6 +17,8 @@ import csv
 import io
 import math
 import re
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -78,31 +80,65 @@ def read(path, *, rate: float | None = None, units: str | None = None,
                           units=str(units or meta_units or "mm"), source=path, meta={})
 
 
+_BROKEN = (ValueError, OSError, EOFError, KeyError, TypeError, SyntaxError, MemoryError,
+           UnicodeDecodeError, OverflowError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
+           NotImplementedError)
+
+
 def _read_numpy(path: Path, suffix: str):
     try:
-        loaded = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as err:
-        _fail(path, f"not a valid {suffix} file ({_first_line(err)})")
-    if suffix == ".npy":
-        if not isinstance(loaded, np.ndarray):
-            _fail(path, "not a .npy array")
-        return _as_points(loaded, path), None, None, None
-    if not hasattr(loaded, "files"):
-        _fail(path, "not a .npz archive")
-    with loaded:
-        if "points" not in loaded.files:
-            _fail(path, f"no 'points' array (found {', '.join(loaded.files) or 'nothing'})")
-        try:
-            points = _as_points(loaded["points"], path)
-            labels = [str(s) for s in loaded["labels"].reshape(-1)] if "labels" in loaded.files \
-                else None
-            rate = float(loaded["rate"]) if "rate" in loaded.files else None
-            units = str(loaded["units"]) if "units" in loaded.files else None
-        except (ValueError, TypeError) as err:
-            _fail(path, f"bad .npz content ({_first_line(err)})")
+        if suffix == ".npy":
+            with open(path, "rb") as handle:
+                return _as_points(_npy_array(handle, path.stat().st_size, path), path), \
+                    None, None, None
+        with zipfile.ZipFile(path) as archive:
+            members = {name[:-4]: name for name in archive.namelist() if name.endswith(".npy")}
+            if "points" not in members:
+                _fail(path, f"no 'points' array (found {', '.join(members) or 'nothing'})")
+            arrays = {}
+            for key in ("points", "labels", "rate", "units"):
+                if key in members:
+                    info = archive.getinfo(members[key])
+                    with archive.open(info) as handle:
+                        arrays[key] = _npy_array(handle, info.file_size, path)
+    except FileFormatError:
+        raise
+    except _BROKEN as err:
+        _fail(path, f"not a valid {suffix} file ({type(err).__name__}: {_first_line(err)})")
+    points = _as_points(arrays["points"], path)
+    try:
+        labels = [str(s) for s in arrays["labels"].reshape(-1)] if "labels" in arrays else None
+        rate = float(arrays["rate"]) if "rate" in arrays else None
+        units = str(arrays["units"]) if "units" in arrays else None
+    except (ValueError, TypeError) as err:
+        _fail(path, f"bad .npz content ({_first_line(err)})")
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         _fail(path, f"rate must be a positive number, found {rate}")
     return points, labels, rate, units
+
+
+def _npy_array(handle, size: int, path: Path) -> np.ndarray:
+    """One ``.npy`` array from ``handle`` (``size`` bytes in all), its header checked against
+    ``size`` first: a header claiming more data than the file holds is an error, not a huge
+    allocation."""
+    fmt = np.lib.format
+    version = fmt.read_magic(handle)
+    read_header = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(
+        version)
+    if read_header is None:
+        raise ValueError(f"unsupported .npy version {version}")
+    shape, fortran, dtype = read_header(handle)
+    if dtype.hasobject:
+        raise ValueError("object arrays are not read (pickles are refused)")
+    need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if need > size:
+        raise ValueError(f"header claims shape {shape} ({need} bytes) but only {size} bytes exist")
+    count = int(np.prod(shape, dtype=np.int64))
+    data = handle.read(count * dtype.itemsize)
+    if len(data) != count * dtype.itemsize:
+        raise EOFError(f"array data cut short ({len(data)} of {count * dtype.itemsize} bytes)")
+    array = np.frombuffer(data, dtype=dtype, count=count)
+    return array.reshape(shape[::-1]).T if fortran else array.reshape(shape)
 
 
 def _first_line(err: Exception) -> str:
@@ -114,8 +150,11 @@ def _read_csv(path: Path):
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         _fail(path, "not a text CSV file (binary content)")
-    rows = [r for r in csv.reader(io.StringIO(text), delimiter=_delimiter(text))
-            if len(r) > 1 or (r and r[0].strip())]       # blank lines go; ",,," is a frame
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text), delimiter=_delimiter(text))
+                if len(r) > 1 or (r and r[0].strip())]   # blank lines go; ",,," is a frame
+    except csv.Error as err:
+        _fail(path, f"not a readable CSV file ({_first_line(err)})")
     if not rows:
         _fail(path, "empty file")
     labels = None
