@@ -37,6 +37,7 @@ References
 """
 from __future__ import annotations
 
+import struct
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -569,6 +570,7 @@ def _encode(lay: Layout, xyz: np.ndarray) -> tuple[np.ndarray, object]:
 
 #: C3D dimensions are single bytes: at most 255 strings per parameter, 255 bytes per string.
 _C3D_MAX = 255
+_C3D_PARAM_BYTES = 32000
 
 
 def _label_params(labels: list[str], path: Path) -> list[tuple[str, str, bytes, list[int]]]:
@@ -586,8 +588,7 @@ def _label_params(labels: list[str], path: Path) -> list[tuple[str, str, bytes, 
         warnings.warn(f"{path.name}: {len(cut)} label(s) longer than {_C3D_MAX} bytes cut to fit "
                       f"C3D: {', '.join(repr(c[:20] + '...') for c in cut[:5])}", stacklevel=4)
     params = []
-    for k, at in enumerate(range(0, max(len(encoded), 1), _C3D_MAX)):
-        chunk = encoded[at:at + _C3D_MAX]
+    for k, chunk in enumerate(_chunks(encoded)):
         width = max((len(raw) for raw in chunk), default=1) or 1
         suffix = str(k + 1) if k else ""
         params.append((f"LABELS{suffix}", "Point labels.",
@@ -595,6 +596,22 @@ def _label_params(labels: list[str], path: Path) -> list[tuple[str, str, bytes, 
         params.append((f"DESCRIPTIONS{suffix}", "Point descriptions.", b" " * len(chunk),
                        [1, len(chunk)]))
     return params
+
+
+def _chunks(encoded: list[bytes]) -> list[list[bytes]]:
+    """Consecutive labels grouped so that each parameter holds at most 255 strings and
+    ``_C3D_PARAM_BYTES`` bytes (a record's size must fit its int16 next-record offset)."""
+    chunks: list[list[bytes]] = [[]]
+    width = 1
+    for raw in encoded:
+        wider = max(width, len(raw))
+        if chunks[-1] and (len(chunks[-1]) == _C3D_MAX
+                           or wider * (len(chunks[-1]) + 1) > _C3D_PARAM_BYTES):
+            chunks.append([])
+            wider = max(len(raw), 1)
+        chunks[-1].append(raw)
+        width = wider
+    return chunks
 
 
 def _write_fresh(seq: MarkerSequence, path: Path) -> None:
@@ -619,7 +636,10 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     writer.add_frames([(frames[t], analog) for t in range(T)])
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "No analog data found")
-        atomic_write(path, writer.write)
+        try:
+            atomic_write(path, writer.write)
+        except struct.error as err:      # e.g. a parameter section beyond 255 blocks
+            _fail(path, f"too many markers or labels too long for a C3D ({err})")
 
 
 __all__ = ["Layout", "RawPoints", "non_markers", "parse", "read", "read_raw", "write"]
