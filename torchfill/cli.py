@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import time
 import warnings
@@ -19,6 +20,7 @@ EXIT_ERROR = 2
 
 
 def main(argv: list[str] | None = None) -> int:
+    _install_signal_handlers()
     parser = _parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -44,6 +46,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"torchfill: internal error: {type(err).__name__}: {_one_line(err)} "
               "(set TORCHFILL_DEBUG=1 for the traceback)", file=sys.stderr)
         return 1
+
+
+def _install_signal_handlers() -> None:
+    """SIGTERM ends the run like Ctrl-C (clean-up runs: no temporary file is left behind)."""
+    def on_term(signum, frame):
+        raise SystemExit(128 + signum)
+    try:
+        signal.signal(signal.SIGTERM, on_term)
+    except ValueError:                     # not the main thread
+        pass
 
 
 def _one_line(err: BaseException) -> str:

@@ -16,14 +16,25 @@ def atomic_write(path: Path, write: Callable) -> None:
     """Call ``write(handle)`` on a temporary file in ``path``'s folder, then rename it to ``path``.
 
     Nothing is left behind on error: the temporary file is removed and ``path`` is untouched.
-    An ``OSError`` becomes a one-line :class:`FileFormatError`.
+    Where the system allows (Linux ``O_TMPFILE``) the data is written to a file with no name,
+    which is linked under a temporary name only once complete and renamed at once, so even a
+    SIGKILL during the write leaves nothing. An existing ``path`` without write permission is
+    refused (it would be silently replaced otherwise). An ``OSError`` becomes a one-line
+    :class:`FileFormatError`.
     """
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise FileFormatError(f"{path}: cannot write, folder {folder} does not exist")
+    if path.exists() and not (path.stat().st_mode & 0o222 and os.access(path, os.W_OK)):
+        raise FileFormatError(f"{path}: cannot write, the file is read-only")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, tmp = _unnamed(folder), None
+    except OSError:
+        fd = None
+    try:
+        if fd is None:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     except OSError as err:
         raise FileFormatError(f"{path}: cannot write ({err.strerror or err})") from None
     try:
@@ -31,16 +42,54 @@ def atomic_write(path: Path, write: Callable) -> None:
             write(handle)
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, _mode_for(path))
+            os.chmod(handle.fileno(), _mode_for(path))
+            if tmp is None:
+                tmp = _link(handle.fileno(), folder, path.name)
         os.replace(tmp, path)
     except BaseException as err:
         try:
-            os.unlink(tmp)
+            if tmp is not None:
+                os.unlink(tmp)
         except OSError:
             pass
         if isinstance(err, OSError):
             raise FileFormatError(f"{path}: cannot write ({err.strerror or err})") from None
         raise
+
+
+def _unnamed(folder: Path) -> int:
+    """A file descriptor of a new file with no name in ``folder`` (``OSError`` if unsupported)."""
+    if not hasattr(os, "O_TMPFILE") or _linkat() is None:
+        raise OSError("O_TMPFILE unsupported")
+    return os.open(folder, os.O_TMPFILE | os.O_WRONLY, 0o600)
+
+
+def _linkat():
+    """libc ``linkat`` (os.link cannot pass AT_SYMLINK_FOLLOW for /proc/self/fd links), or None."""
+    global _LINKAT
+    if _LINKAT is False:
+        try:
+            import ctypes
+            _LINKAT = ctypes.CDLL(None, use_errno=True).linkat
+        except (OSError, AttributeError, ImportError):
+            _LINKAT = None
+    return _LINKAT
+
+
+_LINKAT = False
+
+
+def _link(fd: int, folder: Path, name: str) -> str:
+    """Give the unnamed file ``fd`` a temporary name in ``folder``; returns that name."""
+    for _ in range(100):
+        tmp = os.path.join(folder, f".{name}.{os.urandom(4).hex()}.tmp")
+        import ctypes
+        if _linkat()(-100, f"/proc/self/fd/{fd}".encode(), -100, os.fsencode(tmp), 0x400) == 0:
+            return tmp                            # AT_FDCWD = -100, AT_SYMLINK_FOLLOW = 0x400
+        errno = ctypes.get_errno()
+        if errno != 17:                           # EEXIST: try another name
+            raise OSError(errno, os.strerror(errno))
+    raise FileExistsError(f"no free temporary name for {name}")
 
 
 def _mode_for(path: Path) -> int:
