@@ -5,10 +5,32 @@
 >>> out = torchfill.fill(seq, method="tucker_tnn")
 >>> torchfill.write(out, "trial_filled.c3d")
 """
-from .filling import UnfilledWarning, default_method, fill, methods
-from .io import FileFormatError, read, write
-from .metrics import score
-from .sequence import MarkerSequence
+from importlib import import_module
 
 __version__ = "0.1.0"
 __all__ = ["FileFormatError", "UnfilledWarning", "MarkerSequence", "default_method", "fill", "methods", "read", "score", "write"]
+
+#: Where each public name lives. They are imported on first use (PEP 562), so ``import
+#: torchfill.cli`` stays light and a Ctrl-C during the heavy imports (torch) reaches the CLI's
+#: handler instead of printing a traceback.
+_HOMES = {"fill": ".filling", "methods": ".filling", "default_method": ".filling",
+          "UnfilledWarning": ".filling", "read": ".io", "write": ".io", "FileFormatError": ".io",
+          "score": ".metrics", "MarkerSequence": ".sequence"}
+
+
+_SUBMODULES = {"cli", "data", "filling", "gaps", "io", "lightning", "metrics", "ops", "sequence",
+               "solvers", "constraints", "qc", "rigid"}
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:                # ``torchfill.io`` etc. after a bare ``import torchfill``
+        return import_module(f".{name}", __name__)
+    if name not in _HOMES:
+        raise AttributeError(f"module 'torchfill' has no attribute {name!r}")
+    value = getattr(import_module(_HOMES[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -14,8 +14,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 EXIT_ERROR = 2
 
 
@@ -85,6 +83,8 @@ def _cmd_fill(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
+    import numpy as np
+
     import torchfill
     from torchfill import gaps, metrics
 
