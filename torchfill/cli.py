@@ -35,6 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("torchfill: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:                # `torchfill info F | head`: the reader left; be quiet
+        _silence_stdout()
+        return 141
     except (ValueError, OSError, KeyError) as err:
         print(f"torchfill: error: {_one_line(err)}", file=sys.stderr)
         return EXIT_ERROR
@@ -53,6 +56,15 @@ def _install_signal_handlers() -> None:
     try:
         signal.signal(signal.SIGTERM, on_term)
     except ValueError:                     # not the main thread
+        pass
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
         pass
 
 

@@ -73,6 +73,8 @@ class _Parsed:
         if len(names) < 2 or names[0].strip() != "Frame#":
             _fail(path, "not a TRC file (line 4 must start with 'Frame#')")
         self.labels = [c.strip() for c in names[2:] if c.strip()]
+        if not self.labels:
+            _fail(path, "no markers (line 4 names none)")
         self.first_data = 5
         while self.first_data < len(self.lines) and not self.lines[self.first_data].strip():
             self.first_data += 1
@@ -136,7 +138,10 @@ def _cell(text: str) -> float:
         if text.lower().lstrip("+-") in ("inf", "infinity"):
             raise ValueError(f"infinite value {text!r} (missing samples must be empty or NaN)")
         raise ValueError(f"{text!r} is not a number")
-    return float(text)
+    value = float(text)
+    if math.isinf(value):
+        raise ValueError(f"{text!r} overflows a 64-bit float")
+    return value
 
 
 def _load(path: Path) -> _Parsed:
