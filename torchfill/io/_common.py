@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -150,3 +151,30 @@ def reject_inf(points: np.ndarray, path: Path) -> None:
 
 def default_labels(n: int) -> list[str]:
     return [f"M{j + 1}" for j in range(n)]
+
+
+def storable_labels(labels: list[str], store: Callable[[str, int], str], reads: Callable,
+                    path: Path) -> list[str]:
+    """Labels as a fresh file of some format will hold them.
+
+    ``store(label, j)`` is what the writer puts in the file, ``reads(stored)`` the labels a reader
+    gets back. One warning names every label that does not come back unchanged, and duplicates
+    (kept: they are stored as they are, but markers are then known by position only).
+    """
+    stored = [store(label, j) for j, label in enumerate(labels)]
+    back = reads(stored)
+    changed = [f"{a!r} -> {b!r}" for a, b in zip(labels, back) if a != b]
+    seen, dups = set(), []
+    for label in labels:
+        if label in seen and label not in dups:
+            dups.append(label)
+        seen.add(label)
+    parts = []
+    if changed:
+        parts.append(f"{len(changed)} label(s) changed to fit {path.suffix}: "
+                     + ", ".join(changed[:10]) + (" ..." if len(changed) > 10 else ""))
+    if dups:
+        parts.append(f"duplicate label(s) {', '.join(map(repr, dups[:10]))}")
+    if parts:
+        warnings.warn(f"{path.name}: " + "; ".join(parts), stacklevel=4)
+    return stored

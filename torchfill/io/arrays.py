@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from . import FileFormatError
-from ._common import atomic_write, check_writable, default_labels, reject_inf
+from ._common import atomic_write, check_writable, default_labels, reject_inf, storable_labels
 from ..sequence import MarkerSequence
 
 _AXIS = re.compile(r"^(?P<name>.*?)[\s_.:\-]*(?P<axis>[xyzXYZ])(?P<num>\d*)$")
@@ -182,7 +182,7 @@ def _read_csv(path: Path):
 
 
 def _delimiter(text: str) -> str:
-    first = text.splitlines()[0] if text else ""
+    first = re.sub(r'"[^"]*"', "", text.splitlines()[0]) if text else ""   # not inside quotes
     return max((",", ";", "\t"), key=first.count) if first else ","
 
 
@@ -237,8 +237,11 @@ def write(seq: MarkerSequence, path, *, layout: str = "tj3") -> None:
             handle, points=points, labels=np.array(seq.labels, dtype=str),
             rate=np.float64(seq.rate), units=np.array(seq.units)))
     elif suffix == ".csv":
-        header = ",".join(f"{_csv_safe(label)}_{axis}" for label in seq.labels
-                          for axis in "xyz")
+        labels = storable_labels(seq.labels, _csv_label, _csv_labels_back, path)
+        out = io.StringIO()
+        csv.writer(out, lineterminator="").writerow(
+            f"{label}_{axis}" for label in labels for axis in "xyz")
+        header = out.getvalue()
         body = "\n".join(",".join("NaN" if v != v else repr(v) for v in row)
                          for row in points.reshape(seq.n_frames, -1).tolist())
         text = header + "\n" + body + "\n"
@@ -247,8 +250,13 @@ def write(seq: MarkerSequence, path, *, layout: str = "tj3") -> None:
         _fail(path, f"unsupported array file type {path.suffix!r}")
 
 
-def _csv_safe(label: str) -> str:
-    return label.replace(",", "_").replace("\n", " ").replace('"', "'")
+def _csv_label(label: str, j: int) -> str:
+    """A label as a CSV header name: no line breaks, no outer spaces, never empty."""
+    return re.sub(r"[\r\n]+", " ", label).strip() or f"M{j + 1}"
+
+
+def _csv_labels_back(stored: list[str]) -> list[str]:
+    return _csv_labels([f"{label}_{axis}" for label in stored for axis in "xyz"], Path("."))
 
 
 __all__ = ["read", "write"]

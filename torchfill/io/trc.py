@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from . import FileFormatError
-from ._common import atomic_write, check_writable, default_labels, filled_samples, unwritten_edits
+from ._common import (atomic_write, check_writable, filled_samples, storable_labels,
+                      unwritten_edits)
 from ..sequence import MarkerSequence
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
@@ -263,9 +264,18 @@ def _decimals(cells: list[str]) -> int:
     return max(places) if places else 6
 
 
+def _trc_label(label: str, j: int) -> str:
+    """A label as a TRC header cell: no tabs or line breaks, no outer spaces, never empty."""
+    return re.sub(r"[\t\r\n]+", " ", label).strip() or f"M{j + 1}"
+
+
+def _trc_labels_back(stored: list[str]) -> list[str]:
+    return [c.strip() for c in stored if c.strip()]
+
+
 def _fresh_text(seq: MarkerSequence, path: Path, decimals: int) -> str:
     T, J = seq.n_frames, seq.n_markers
-    labels = seq.labels or default_labels(J)
+    labels = storable_labels(seq.labels, _trc_label, _trc_labels_back, path)
     first = int(seq.meta.get("first_frame", 1) or 1)
     rate = float(seq.rate)
     lines = [
