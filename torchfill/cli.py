@@ -6,6 +6,7 @@ with status 2; nothing is written unless the whole fill succeeded.
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 import json
 import os
 import signal
@@ -81,10 +82,12 @@ def _cmd_fill(args) -> int:
     params = _parse_params(args.param)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
-    method = args.method or torchfill.default_method()
+    method = torchfill.default_method() if args.method is None else args.method
     n_missing = int(seq.mask.sum())
     _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
-    filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args), **params)
+    with _naming(args.input):
+        filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
+                                **params)
     _clear_progress(args)
     torchfill.write(filled, out_path)
     info = filled.meta["fill_info"]
@@ -118,7 +121,8 @@ def _cmd_evaluate(args) -> int:
     rows = []
     for method in dict.fromkeys(methods):
         params = _parse_params(args.param) if len(methods) == 1 else {}
-        filled = torchfill.fill(incomplete, method, progress=_progress(args), **params)
+        with _naming(args.input):
+            filled = torchfill.fill(incomplete, method, progress=_progress(args), **params)
         _clear_progress(args)
         info = filled.meta["fill_info"]
         rows.append({"method": method, **metrics.score(filled.points, truth.points, mask),
@@ -173,6 +177,17 @@ def _cmd_experiment(args) -> int:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
+@contextmanager
+def _naming(path):
+    """Errors about the input (too few frames, unknown method or hyperparameter...) name it."""
+    try:
+        yield
+    except ValueError as err:
+        if str(path) in str(err):
+            raise
+        raise ValueError(f"{path}: {_one_line(err)}") from None
+
+
 def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
 

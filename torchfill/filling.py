@@ -57,7 +57,9 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     device and of the same dtype. Wherever the input was finite (and not masked), the output is the
     input bit-for-bit. Markers never observed stay NaN, with an :class:`UnfilledWarning`.
     """
-    method = method or default_method()
+    method = default_method() if method is None else method
+    if not isinstance(method, str) or not method.strip():
+        raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
     get_solver(method, **{k: v for k, v in params.items() if k != "training"})  # validate early
