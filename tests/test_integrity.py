@@ -326,3 +326,12 @@ def test_errors_name_the_file(tmp_path, capsys):
         assert status == 2, argv
         _one_line_error(err, name)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npz", "one.npz", "zero.trc"]
+
+
+def test_fresh_trc_and_csv_keep_observed_values_exactly(tmp_path):
+    seq = _seq()
+    seq.points[3, 0, 0] = 6.515494612345e+02
+    for name in ("f.trc", "f.csv", "f.npz"):
+        torchfill.write(seq, tmp_path / name)
+        back = torchfill.read(tmp_path / name)
+        np.testing.assert_array_equal(back.points, seq.points)

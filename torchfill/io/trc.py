@@ -264,6 +264,13 @@ def _decimals(cells: list[str]) -> int:
     return max(places) if places else 6
 
 
+def _exact(value: float, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals when that reads back as the same float, else the
+    shortest text that does (a fresh TRC never rounds a value away)."""
+    text = f"{value:.{decimals}f}"
+    return text if float(text) == value else repr(value)
+
+
 def _trc_label(label: str, j: int) -> str:
     """A label as a TRC header cell: no tabs or line breaks, no outer spaces, never empty."""
     return re.sub(r"[\t\r\n]+", " ", label).strip() or f"M{j + 1}"
@@ -287,10 +294,9 @@ def _fresh_text(seq: MarkerSequence, path: Path, decimals: int) -> str:
         "\t\t" + "\t".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}" for j in range(J)),
         "",
     ]
-    fmt = f"{{:.{decimals}f}}"
     for t in range(T):
         row = seq.points[t].reshape(-1)
-        cells = ["" if math.isnan(v) else fmt.format(v) for v in row.tolist()]
+        cells = ["" if math.isnan(v) else _exact(v, decimals) for v in row.tolist()]
         lines.append(f"{first + t}\t{t / rate:.6f}\t" + "\t".join(cells))
     return "\n".join(lines) + "\n"
 
