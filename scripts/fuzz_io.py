@@ -374,18 +374,26 @@ def _c3d_kept(src: Path, out: Path, before: MarkerSequence, filled: np.ndarray) 
 
 
 def _trc_kept(src: Path, out: Path, filled: np.ndarray) -> list[str]:
+    """Lines other than the data rows of filled samples are byte-identical; in those rows only
+    the cells of filled samples changed."""
+    from torchfill.io import trc as trc_io
     a, b = src.read_bytes().splitlines(), out.read_bytes().splitlines()
     if len(a) != len(b):
         return [f"TRC lines {len(a)} -> {len(b)}"]
-    changed = [i for i, (x, y) in enumerate(zip(a, b)) if x != y]
-    if not changed:
-        return []
-    first = len(a) - filled.shape[0]
-    while first > 0 and not a[first - 1].strip() and first - 1 >= 5:
-        first -= 1                                  # trailing blank lines are not frames
-    rows = {i for i in changed if i < first}
-    if rows:
-        return [f"TRC header lines changed: {sorted(rows)[:3]}"]
+    rows = trc_io._load(src).data_lines
+    allowed = {rows[t]: set(np.flatnonzero(filled[t]).tolist())
+               for t in np.flatnonzero(filled.any(axis=1))}
+    for i, (x, y) in enumerate(zip(a, b)):
+        if x == y:
+            continue
+        if i not in allowed:
+            return [f"TRC line {i + 1} changed, not a row with a filled sample"]
+        cx, cy = x.split(b"\t"), y.split(b"\t")
+        cx += [b""] * (len(cy) - len(cx))
+        bad = [k for k in range(len(cy)) if cx[k] != cy[k] and (k < 2 or (k - 2) // 3
+                                                               not in allowed[i])]
+        if bad or len(cx) > len(cy):
+            return [f"TRC line {i + 1}: cells {bad[:5]} changed outside filled samples"]
     return []
 
 

@@ -231,18 +231,27 @@ def test_write_back_onto_the_source_itself(recording, tmp_path):
     assert not torchfill.read(path).mask.any()
 
 
-def test_integer_overflow_raises_and_writes_nothing(recording, tmp_path):
+def test_integer_overflow_leaves_that_sample_unfilled_and_says_where(recording, tmp_path):
+    """Issue #18: one value beyond int16 x scale no longer sinks the whole write; the other
+    filled samples are written, the one that does not fit stays invalid, a warning names it."""
     path = recording("biomechzoo_hockey_wrist_shot_009.c3d")
     seq = torchfill.read(path)
     new = seq.points.copy()
+    filled = np.zeros(seq.mask.shape, bool)
+    filled[100:110, 4] = True
+    new[filled] += 12.3456
     new[0, 0] = 1e9                                        # beyond int16 x scale
+    filled[0, 0] = True
     edited = seq.with_points(new)
-    edited.meta["filled"] = np.zeros(seq.mask.shape, bool)
-    edited.meta["filled"][0, 0] = True
+    edited.meta["filled"] = filled
     out = tmp_path / "overflow.c3d"
-    with pytest.raises(FileFormatError, match="int16"):
+    with pytest.warns(UserWarning, match=f"1 filled sample.*int16.*{seq.labels[0]} frames "
+                                         f"{seq.meta['first_frame']}-"):
         torchfill.write(edited, out)
-    assert list(tmp_path.iterdir()) == []
+    back = torchfill.read(out)
+    np.testing.assert_array_equal(back.points[0, 0], seq.points[0, 0])   # as in the source
+    filled[0, 0] = False
+    _check_write_back(path, out, edited, filled)
 
 
 # ------------------------------------------------------------------------------------------

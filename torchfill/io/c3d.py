@@ -531,16 +531,41 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     words = np.ndarray((lay.n_frames, lay.frame_words), lay.storage_dtype, buffer=out,
                        offset=lay.data_offset)
     t, j = np.nonzero(filled)
-    col = 4 * index[j]
     xyz = seq.points[t, j]
-    try:
-        encoded, zero = _encode(lay, xyz)
-    except (OverflowError, ValueError) as err:
-        _fail(path, f"cannot store filled values in {source.name}: {err}")
+    fits = _storable(lay, xyz)
+    if not fits.all():
+        _warn_unstorable(seq, path, source, lay, t[~fits], j[~fits])
+        t, j, xyz = t[fits], j[fits], xyz[fits]
+    col = 4 * index[j]
+    encoded, zero = _encode(lay, xyz)
     for k in range(3):
         words[t, col + k] = encoded[:, k]
     words[t, col + 3] = zero
     atomic_write(path, lambda handle: handle.write(out))
+
+
+def _storable(lay: Layout, xyz: np.ndarray) -> np.ndarray:
+    """``(n,)`` True where a sample's coordinates fit the file's storage (int16 x POINT:SCALE,
+    float32, or DEC reals)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not lay.is_float:
+            q = np.rint(xyz / lay.scale)
+            return ((q >= -32768) & (q <= 32767)).all(axis=1)
+        limit = np.finfo(np.float32).max / (4.0 if lay.processor == "dec" else 1.0)
+        return (np.abs(xyz) <= limit).all(axis=1)
+
+
+def _warn_unstorable(seq, path: Path, source: Path, lay: Layout, t: np.ndarray, j: np.ndarray):
+    """One warning naming the markers and frames whose fills the file cannot hold."""
+    kind = f"int16 range at POINT:SCALE {lay.scale:g}" if not lay.is_float else "real range"
+    where = []
+    for m in np.unique(j)[:8]:
+        frames = t[j == m] + lay.first_frame
+        where.append(f"{seq.labels[m]} frames {frames.min()}-{frames.max()} ({len(frames)})")
+    more = " ..." if len(np.unique(j)) > 8 else ""
+    warnings.warn(f"{path.name}: {len(t)} filled sample(s) beyond the {kind} of {source.name} "
+                  f"left unfilled (residual -1): {'; '.join(where)}{more}; write .trc/.npz/.csv "
+                  f"to keep them", stacklevel=4)
 
 
 def _off_origin(xyz: np.ndarray, step: float) -> np.ndarray:
@@ -628,6 +653,11 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     first = int(seq.meta.get("first_frame", 1) or 1)
     writer.set_start_frame(max(first, 1))
     valid = np.isfinite(seq.points).all(axis=2)
+    big = valid & (np.abs(seq.points) > np.finfo(np.float32).max).any(axis=2)
+    if big.any():
+        t, j = np.argwhere(big)[0]
+        _fail(path, f"{int(big.sum())} sample(s) beyond the float32 range of C3D (first: "
+                    f"{labels[j]}, frame {first + t}); write .npz, .csv or .trc instead")
     frames = np.zeros((T, J, 5), dtype=np.float32)
     frames[..., :3] = np.where(valid[..., None], seq.points, 0.0)
     frames[valid, :3] = _off_origin(frames[valid, :3].astype(np.float64), 1e-30)
