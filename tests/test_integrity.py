@@ -335,3 +335,16 @@ def test_fresh_trc_and_csv_keep_observed_values_exactly(tmp_path):
         torchfill.write(seq, tmp_path / name)
         back = torchfill.read(tmp_path / name)
         np.testing.assert_array_equal(back.points, seq.points)
+
+
+def test_param_values_as_methods_v_shows_them(tmp_path, capsys):
+    """Real-file usability: -p verbose=True and -p rank=(8,8,3) failed; only JSON worked."""
+    assert cli._parse_params(["verbose=True", "rank=(8,8,3)", "tol=1e-5", "x=None", "s=abc",
+                              "j=[1, 2]", "b=true"]) == {
+        "verbose": True, "rank": (8, 8, 3), "tol": 1e-5, "x": None, "s": "abc", "j": [1, 2],
+        "b": True}
+    src = tmp_path / "in.npz"
+    torchfill.write(_seq(), src)
+    status, _, err = _run_cli(["fill", src, "-o", tmp_path / "o.npz", "-m", "grad_tucker",
+                               "-p", "rank=(3,3,3)", "-p", "max_iter=5", "-q"], capsys)
+    assert status == 0, err

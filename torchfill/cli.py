@@ -6,6 +6,7 @@ with status 2; nothing is written unless the whole fill succeeded.
 from __future__ import annotations
 
 import argparse
+import ast
 from contextlib import contextmanager
 import json
 import os
@@ -193,15 +194,20 @@ def _default_output(path: Path) -> Path:
 
 
 def _parse_params(pairs: list[str]) -> dict:
+    """``NAME=VALUE`` pairs; VALUE as JSON (``true``, ``[8, 8, 3]``) or a Python literal as
+    ``methods -v`` shows defaults (``True``, ``(8, 8, 3)``, ``None``), else a string."""
     params = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key:
             raise ValueError(f"--param expected NAME=VALUE, found {pair!r}")
         try:
-            params[key] = json.loads(value)
+            params[key.strip()] = json.loads(value)
         except json.JSONDecodeError:
-            params[key] = value
+            try:
+                params[key.strip()] = ast.literal_eval(value.strip())
+            except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+                params[key.strip()] = value
     return params
 
 
@@ -270,7 +276,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="leave longer gaps unfilled")
     p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="a method hyperparameter (repeatable), e.g. -p max_iter=200")
+                   help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
+                        "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(run=_cmd_fill)
 
