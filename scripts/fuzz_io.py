@@ -342,8 +342,9 @@ def _check_kept(src: Path, out: Path, before: MarkerSequence, after: MarkerSeque
         problems.append(f"{n} observed coordinate(s) altered")
     if after.labels != before.labels:
         problems.append("labels changed")
-    if src.suffix.lower() in (".npz", ".c3d", ".trc") and (after.units != before.units
-                                                           or after.rate != before.rate):
+    if src.suffix.lower() in (".npz", ".c3d", ".trc") and (
+            after.units != before.units or not np.array_equal(after.rate, before.rate,
+                                                              equal_nan=True)):
         problems.append(f"rate/units {before.rate}/{before.units} -> {after.rate}/{after.units}")
     filled = ~np.isfinite(before.points).all(axis=2) & np.isfinite(after.points).all(axis=2)
     if src.suffix.lower() == ".c3d":

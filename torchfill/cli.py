@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
             status = args.run(args)
         for w in caught:
             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning)):
-                print(f"torchfill: warning: {w.message}", file=sys.stderr)
+                print(f"torchfill: warning: {_one_line(w.message)}", file=sys.stderr)
         return status
     except KeyboardInterrupt:
         print("torchfill: interrupted", file=sys.stderr)

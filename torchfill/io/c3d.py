@@ -160,6 +160,8 @@ def parse(buf: bytes, path) -> Layout:
     lay.analog_words = int(header[2])
     if data_block < 2 or lay.data_offset < param_start + 4:
         _fail(path, f"corrupt C3D: data block {data_block} overlaps the header or parameters")
+    if not np.isfinite(lay.rate) or lay.rate < 0:
+        _fail(path, f"corrupt C3D: POINT:RATE is {lay.rate}")
     if not np.isfinite(lay.scale) or lay.scale == 0:
         _fail(path, f"corrupt C3D: POINT:SCALE is {lay.scale}")
     if lay.data_offset + lay.data_size > size:

@@ -188,6 +188,8 @@ def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> Mark
     if zeros_missing:
         points[(points == 0).all(axis=2)] = np.nan
     rate = parsed.number("DataRate") or parsed.number("CameraRate")
+    if rate is not None and not (math.isfinite(rate) and rate >= 0):
+        _fail(path, f"header DataRate/CameraRate is {rate}, expected a positive number")
     if not rate and len(times) > 1 and np.isfinite(times[:2]).all() and times[1] > times[0]:
         rate = 1.0 / (times[1] - times[0])
     meta = {"frame_numbers": frames.astype(np.int64), "time": times,
