@@ -348,3 +348,34 @@ def test_param_values_as_methods_v_shows_them(tmp_path, capsys):
     status, _, err = _run_cli(["fill", src, "-o", tmp_path / "o.npz", "-m", "grad_tucker",
                                "-p", "rank=(3,3,3)", "-p", "max_iter=5", "-q"], capsys)
     assert status == 0, err
+
+
+DATA = Path(os.environ.get("TORCHFILL_DATA") or REPO / ".." / "shared" / "data").resolve()
+
+
+def _real(name: str) -> Path:
+    path = DATA / name
+    if not path.is_file():
+        pytest.skip(f"shared recording {name} not found")
+    return path
+
+
+def test_evaluate_works_on_real_gapped_files_in_mm(capsys):
+    """Before: refused files without 2 complete markers, printed metre files in metres, and
+    counted duplicate labels as separate markers."""
+    import json
+    argv = ["-m", "linear", "--markers", "5", "--gap-length", "30", "--max-gaps", "2", "--json"]
+    no_complete = _real("c3dorg_s26_walking_hybrid_1_1.c3d")      # 0 complete markers
+    assert cli.main(["evaluate", str(no_complete), *argv]) == 0
+    out = capsys.readouterr()
+    row = json.loads(out.out)["results"][0]
+    assert 0 < row["rmse_missing"] < 200
+    metres = _real("ktk_basket_sprint.c3d")                          # units m, 0 complete
+    assert cli.main(["evaluate", str(metres), *argv]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["units"] == "mm" and 1 < report["results"][0]["rmse_missing"] < 500
+    dups = _real("c3dorg_s26_walking_hybrid_2.c3d")                  # 25 duplicated labels
+    assert cli.main(["evaluate", str(dups), *argv]) == 0
+    out = capsys.readouterr()
+    assert "duplicate-label marker(s) merged" in out.err
+    assert json.loads(out.out)["results"][0]["rmse_missing"] > 1e-3   # not a copy's free fill

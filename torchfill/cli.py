@@ -104,21 +104,22 @@ def _cmd_evaluate(args) -> int:
     import torchfill
     from torchfill import gaps, metrics
 
-    seq = torchfill.read(args.input)
-    complete = ~seq.mask.any(axis=0)
-    if complete.sum() < 2:
-        raise ValueError(f"{args.input}: fewer than 2 markers are complete; "
-                         "evaluate needs complete markers to simulate gaps on")
-    truth = seq.select(np.flatnonzero(complete))
+    read = torchfill.read(args.input)
+    truth = read.merge_duplicates()
     T, J = truth.points.shape[:2]
     kwargs = _protocol_kwargs(args, J)
-    mask = gaps.generate(args.protocol, T, J, seed=args.seed, **kwargs)
+    # gaps are simulated on observed samples of every marker (real files are rarely complete)
+    mask = gaps.generate(args.protocol, T, J, seed=args.seed, **kwargs) & ~truth.mask
+    if not mask.any():
+        raise ValueError(f"{args.input}: no observed sample falls in the simulated gaps")
     incomplete = truth.with_points(np.where(mask[..., None], np.nan, truth.points))
     methods = [m for part in args.method for m in part.split(",") if m] or \
         ["linear", "spline", "pchip", torchfill.default_method()]
-    _say(args, f"{truth}  (dropped {int((~complete).sum())} incomplete markers)\n"
-               f"protocol {args.protocol} {kwargs} seed {args.seed}: "
-               f"{int(mask.sum())} missing samples in {int(mask.any(axis=0).sum())} markers")
+    merged = read.n_markers - truth.n_markers
+    _say(args, f"{truth}" + (f"  ({merged} duplicate-label marker(s) merged)" if merged else "")
+         + f"\nprotocol {args.protocol} {kwargs} seed {args.seed}: {int(mask.sum())} observed "
+         f"samples hidden in {int(mask.any(axis=0).sum())} markers")
+    factor, units = _MM.get(truth.units, (1.0, truth.units))
     rows = []
     for method in dict.fromkeys(methods):
         params = _parse_params(args.param) if len(methods) == 1 else {}
@@ -126,14 +127,19 @@ def _cmd_evaluate(args) -> int:
             filled = torchfill.fill(incomplete, method, progress=_progress(args), **params)
         _clear_progress(args)
         info = filled.meta["fill_info"]
-        rows.append({"method": method, **metrics.score(filled.points, truth.points, mask),
+        errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
+        rows.append({"method": method, **{k: v * factor for k, v in errors.items()},
                      "seconds": info["seconds"], "iterations": info["n_iter"]})
     if args.json:
         print(json.dumps({"file": str(args.input), "protocol": args.protocol, **kwargs,
-                          "seed": args.seed, "units": seq.units, "results": rows}, indent=2))
+                          "seed": args.seed, "units": units, "results": rows}, indent=2))
     else:
-        print(_table(rows, seq.units))
+        print(_table(rows, units))
     return 0
+
+
+#: Errors are reported in mm: factor from the file's units.
+_MM = {"mm": (1.0, "mm"), "m": (1000.0, "mm"), "cm": (10.0, "mm")}
 
 
 def _cmd_info(args) -> int:

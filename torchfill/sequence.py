@@ -77,6 +77,29 @@ class MarkerSequence:
         return replace(self, points=self.points[:, index].copy(),
                        labels=[self.labels[i] for i in index], meta=meta)
 
+    def duplicates(self) -> dict[str, list[int]]:
+        """Labels that name more than one marker, with their indices."""
+        where: dict[str, list[int]] = {}
+        for j, label in enumerate(self.labels):
+            where.setdefault(label, []).append(j)
+        return {label: idx for label, idx in where.items() if len(idx) > 1}
+
+    def merge_duplicates(self) -> "MarkerSequence":
+        """A copy with one marker per label: the first marker of a duplicated label, its missing
+        samples taken from the later ones where those are observed (their union)."""
+        dups = self.duplicates()
+        if not dups:
+            return self
+        points = self.points.copy()
+        for idx in dups.values():
+            for j in idx[1:]:
+                take = ~np.isfinite(points[:, idx[0]]).all(axis=1) & np.isfinite(
+                    self.points[:, j]).all(axis=1)
+                points[take, idx[0]] = self.points[take, j]
+        drop = {j for idx in dups.values() for j in idx[1:]}
+        keep = [j for j in range(self.n_markers) if j not in drop]
+        return self.with_points(points).select(keep)
+
     def __repr__(self) -> str:
         missing = 100.0 * self.mask.mean() if self.points.size else 0.0
         name = self.source.name if self.source else "<memory>"
