@@ -182,8 +182,8 @@ def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> Mark
     frames, times, points = parsed.table()
     J = len(parsed.labels)
     declared = parsed.number("NumMarkers")
-    if declared is not None and int(declared) != J:
-        warnings.warn(f"{path.name}: header says {int(declared)} markers, labels name {J}",
+    if declared is not None and declared != J:
+        warnings.warn(f"{path.name}: header says {declared:g} markers, labels name {J}",
                       stacklevel=2)
     if zeros_missing:
         points[(points == 0).all(axis=2)] = np.nan
