@@ -379,3 +379,32 @@ def test_evaluate_works_on_real_gapped_files_in_mm(capsys):
     out = capsys.readouterr()
     assert "duplicate-label marker(s) merged" in out.err
     assert json.loads(out.out)["results"][0]["rmse_missing"] > 1e-3   # not a copy's free fill
+
+
+def test_info_separates_never_observed_markers_trial_ends_and_duplicates(tmp_path, capsys):
+    points = np.ones((50, 4, 3)) + np.arange(50)[:, None, None]
+    points[:, 3] = np.nan                                   # never observed
+    points[0:5, 0] = np.nan                                 # at the start
+    points[20:23, 1] = np.nan                               # interior, 3 frames
+    points[30, :] = np.nan                                  # no marker seen
+    path = tmp_path / "i.npz"
+    torchfill.write(MarkerSequence(points=points, labels=["A", "B", "B", "D"]), path)
+    assert cli.main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "longest 5 frames" in out                         # not 50 (the never-seen marker)
+    assert "interior gap(s) (longest 3 frames), 1 at the trial ends" in out
+    assert "1 frame(s) with no marker seen" in out
+    assert "1 marker(s) never observed: D" in out
+    assert "duplicate labels: B (markers 1, 2)" in out
+    assert f"{100 * (6 + 4 + 1) / 150:.1f}% missing in observed markers" in out
+
+
+def test_headerless_csv_says_what_it_assumed_and_stays_headerless(tmp_path):
+    path = tmp_path / "raw.csv"
+    path.write_text("1,2,3,4,5,6\n,,,7,8,9\n2,3,4,5,6,7\n")
+    with pytest.warns(UserWarning, match="no header row; labels M1..M2, 100 Hz, mm assumed"):
+        seq = torchfill.read(path)
+    out = torchfill.fill(seq, "linear")
+    torchfill.write(out, tmp_path / "filled.csv")
+    lines = (tmp_path / "filled.csv").read_text().splitlines()
+    assert len(lines) == 3 and lines[0] == "1.0,2.0,3.0,4.0,5.0,6.0"

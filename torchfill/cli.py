@@ -147,17 +147,32 @@ def _cmd_info(args) -> int:
     from torchfill.metrics import gap_runs
 
     seq = torchfill.read(args.input, markers_only=not args.all_points)
-    runs = gap_runs(seq.mask)
+    T = seq.n_frames
+    never = seq.mask.all(axis=0)
+    runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
+    inner = [b - a for _, a, b in runs if a > 0 and b < T]
+    seen = seq.mask[:, ~never]
     print(seq)
-    print(f"frames {seq.n_frames}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
+    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
           f"{len(runs)} gaps, longest {max((b - a for _, a, b in runs), default=0)} frames")
+    print(f"  {len(inner)} interior gap(s) (longest {max(inner, default=0)} frames), "
+          f"{len(runs) - len(inner)} at the trial ends; "
+          f"{100.0 * seen.mean() if seen.size else 0.0:.1f}% missing in observed markers; "
+          f"{int(seq.mask.all(axis=1).sum())} frame(s) with no marker seen")
+    if never.any():
+        print(f"  {int(never.sum())} marker(s) never observed: "
+              f"{', '.join(seq.labels[j] for j in range(seq.n_markers) if never[j])}")
+    dups = seq.duplicates()
+    if dups:
+        print(f"  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
+                                                  for label, idx in dups.items()))
     width = max((len(label) for label in seq.labels), default=6)
     print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
     for j, label in enumerate(seq.labels):
         own = [b - a for k, a, b in runs if k == j]
-        if own or args.all_markers:
+        if own or never[j] or args.all_markers:
             print(f"{label:<{width}}  {int(seq.mask[:, j].sum()):>8}  {len(own):>5}  "
-                  f"{max(own, default=0):>7}")
+                  f"{max(own, default=0):>7}" + ("  never observed" if never[j] else ""))
     return 0
 
 

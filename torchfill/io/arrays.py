@@ -17,6 +17,7 @@ import csv
 import io
 import math
 import re
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -71,12 +72,19 @@ def read(path, *, rate: float | None = None, units: str | None = None,
         points, labels, meta_rate, meta_units = _read_numpy(path, suffix)
     points = _nan_rows(points)
     J = points.shape[1]
+    meta = {}
+    if suffix == ".csv" and labels is None:
+        meta["csv_header"] = False           # a write-back to CSV keeps it headerless
+        if rate is None or units is None:
+            warnings.warn(f"{path.name}: no header row; labels M1..M{J}"
+                          + (", 100 Hz" if rate is None else "")
+                          + (", mm" if units is None else "") + " assumed", stacklevel=2)
     labels = labels or default_labels(J)
     if len(labels) != J:
         _fail(path, f"{len(labels)} labels for {J} markers")
     return MarkerSequence(points=points, labels=labels,
                           rate=float(rate or meta_rate or 100.0),
-                          units=str(units or meta_units or "mm"), source=path, meta={})
+                          units=str(units or meta_units or "mm"), source=path, meta=meta)
 
 
 def _read_numpy(path: Path, suffix: str):
@@ -233,12 +241,14 @@ def write(seq: MarkerSequence, path, *, layout: str = "tj3") -> None:
     elif suffix == ".csv":
         labels = storable_labels(seq.labels, _csv_label, _csv_labels_back, path)
         out = io.StringIO()
-        csv.writer(out, lineterminator="").writerow(
+        csv.writer(out, lineterminator="\n").writerow(
             f"{label}_{axis}" for label in labels for axis in "xyz")
         header = out.getvalue()
+        if seq.meta.get("csv_header") is False and seq.labels == default_labels(seq.n_markers):
+            header = ""                      # the source CSV had none: do not add one
         body = "\n".join(",".join("NaN" if v != v else repr(v) for v in row)
                          for row in points.reshape(seq.n_frames, -1).tolist())
-        text = header + "\n" + body + "\n"
+        text = header + body + "\n"
         atomic_write(path, lambda handle: handle.write(text.encode("utf-8")))
     else:
         _fail(path, f"unsupported array file type {path.suffix!r}")
