@@ -228,7 +228,7 @@ def test_class08_interrupt_during_startup_prints_no_traceback(tmp_path):
     lazy = subprocess.run([PY, "-c", "import sys, torchfill.cli; print('torch' in sys.modules)"],
                           capture_output=True, text=True, env=ENV, cwd=REPO)
     assert lazy.stdout.strip() == "False", lazy.stderr       # the heavy imports come later
-    for delay in (0.3, 0.8, 1.5):
+    for delay in (0.6, 1.2, 2.0):
         proc = subprocess.Popen([PY, "-m", "torchfill", "methods"], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, env=ENV, cwd=REPO)
         time.sleep(delay)
