@@ -408,3 +408,14 @@ def test_headerless_csv_says_what_it_assumed_and_stays_headerless(tmp_path):
     torchfill.write(out, tmp_path / "filled.csv")
     lines = (tmp_path / "filled.csv").read_text().splitlines()
     assert len(lines) == 3 and lines[0] == "1.0,2.0,3.0,4.0,5.0,6.0"
+
+
+def test_unwritable_output_is_refused_before_the_fill(tmp_path, capsys, monkeypatch):
+    src = tmp_path / "in.npz"
+    torchfill.write(_seq(), src)
+    called = []
+    monkeypatch.setattr(torchfill, "fill", lambda *a, **k: called.append(1))
+    for out in (tmp_path / "o.xyz", tmp_path / "nope" / "o.npz"):
+        status, _, err = _run_cli(["fill", src, "-o", out, "-m", "linear", "-q"], capsys)
+        assert status == 2 and not called
+        _one_line_error(err, out.name)

@@ -80,6 +80,7 @@ def _cmd_fill(args) -> int:
 
     seq = torchfill.read(args.input)
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
+    torchfill.io.check_target(out_path)                 # refuse now, not after the fill
     params = _parse_params(args.param)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]

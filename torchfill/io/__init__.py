@@ -41,6 +41,19 @@ def write(seq: MarkerSequence, path, **kwargs) -> Path:
     return path
 
 
+def check_target(path) -> Path:
+    """``FileFormatError`` now if ``path`` cannot be written later (type, folder, read-only), so
+    a long fill is not wasted on an output that would be refused."""
+    path = Path(path)
+    _pick(path, "write")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise FileFormatError(f"{path}: cannot write, folder {folder} does not exist")
+    from ._common import refuse_read_only
+    refuse_read_only(path)
+    return path
+
+
 def _wrap(points, path: Path) -> MarkerSequence:
     """A bare ``(T, J, 3)`` array (NumPy or torch) as a MarkerSequence with default labels."""
     if hasattr(points, "detach"):
@@ -62,4 +75,4 @@ def _pick(path: Path, verb: str):
     return getattr(import_module(f".{module}", __name__), verb)
 
 
-__all__ = ["FileFormatError", "read", "write"]
+__all__ = ["FileFormatError", "check_target", "read", "write"]

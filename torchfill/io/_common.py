@@ -27,8 +27,7 @@ def atomic_write(path: Path, write: Callable) -> None:
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise FileFormatError(f"{path}: cannot write, folder {folder} does not exist")
-    if path.exists() and not (path.stat().st_mode & 0o222 and os.access(path, os.W_OK)):
-        raise FileFormatError(f"{path}: cannot write, the file is read-only")
+    refuse_read_only(path)
     try:
         fd, tmp = _unnamed(folder), None
     except OSError:
@@ -56,6 +55,13 @@ def atomic_write(path: Path, write: Callable) -> None:
         if isinstance(err, OSError):
             raise FileFormatError(f"{path}: cannot write ({err.strerror or err})") from None
         raise
+
+
+def refuse_read_only(path: Path) -> None:
+    """``FileFormatError`` if ``path`` exists without write permission (a rename would replace
+    it silently)."""
+    if path.exists() and not (path.stat().st_mode & 0o222 and os.access(path, os.W_OK)):
+        raise FileFormatError(f"{path}: cannot write, the file is read-only")
 
 
 def _unnamed(folder: Path) -> int:
