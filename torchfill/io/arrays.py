@@ -78,7 +78,7 @@ def read(path, *, rate: float | None = None, units: str | None = None,
         if rate is None or units is None:
             warnings.warn(f"{path.name}: no header row; labels M1..M{J}"
                           + (", 100 Hz" if rate is None else "")
-                          + (", mm" if units is None else "") + " assumed", stacklevel=2)
+                          + (", mm" if units is None else "") + " assumed", stacklevel=3)
     labels = labels or default_labels(J)
     if len(labels) != J:
         _fail(path, f"{len(labels)} labels for {J} markers")
