@@ -95,3 +95,16 @@ def interp_linear(M: Tensor, observed: Tensor) -> Tensor:
     out = torch.where(has_prev & has_next, lin, torch.where(has_prev, vp, vn))
     out = torch.where(has_prev | has_next, out, torch.zeros((), dtype=M.dtype, device=M.device))
     return torch.where(observed, M, out)
+
+
+def runs(mask: Tensor) -> list[tuple[int, int, int]]:
+    """``(column, start, stop)`` of every run of True along time in a bool ``(T, N)`` tensor, column
+    by column (stop exclusive). The run-lengths of gap and hold-out masks, computed on the CPU."""
+    m = mask.to(torch.int8).cpu()
+    pad = torch.zeros(1, m.shape[1], dtype=torch.int8)
+    d = torch.diff(torch.cat([pad, m, pad]), dim=0)
+    out = []
+    for j in range(m.shape[1]):
+        edges = torch.nonzero(d[:, j]).flatten().tolist()
+        out.extend((j, a, b) for a, b in zip(edges[::2], edges[1::2]))
+    return out

@@ -57,6 +57,9 @@ from torch.nn.utils import parametrizations, parametrize
 from .. import ops
 from .base import Param, Solver, available, get_solver, register
 from .factorized import CPTensor, TuckerTensor
+from .holdout import HoldOut, run_holdout, select_holdout
+
+holdout_runs = run_holdout      # the old name (one release)
 
 Tensor = torch.Tensor
 
@@ -159,27 +162,6 @@ def hosvd(X: Tensor, rank: Sequence[int]) -> tuple[Tensor, list[Tensor]]:
     return ops.multi_mode_dot(X, factors, transpose=True), factors
 
 
-def holdout_runs(Omega: Tensor, fraction: float, length: int, generator: torch.Generator) -> Tensor:
-    """A gap-shaped held-out set: runs of ``length`` frames of OBSERVED samples on random markers,
-    drawn until about ``fraction`` of the observed samples are held out. Returns a bool mask
-    (full shape, True = held out); the fit never sees these samples, stopping watches them."""
-    T = Omega.shape[0]
-    obs = Omega.reshape(T, Omega.shape[1], -1).all(dim=2)           # (T, J) samples fully observed
-    target = fraction * float(obs.sum())
-    held = torch.zeros_like(obs)
-    length = max(1, min(length, T // 4))
-    for _ in range(10_000):
-        if float(held.sum()) >= target:
-            break
-        j = int(torch.randint(obs.shape[1], (1,), generator=generator, device=obs.device))
-        t0 = int(torch.randint(max(1, T - length + 1), (1,), generator=generator, device=obs.device))
-        free = obs[t0:t0 + length, j] & ~held[t0:t0 + length, j]
-        kept = int((obs[:, j] & ~held[:, j]).sum()) - length
-        if bool(free.all()) and kept >= int(obs[:, j].sum()) // 2:   # keep half of each marker
-            held[t0:t0 + length, j] = True
-    return held.reshape(held.shape + (1,) * (Omega.ndim - 2)).expand_as(Omega) & Omega
-
-
 def _find_model(solver: Solver, kind: type) -> nn.Module:
     """The closed-form solver's factorized tensor (its learned ``*_`` attribute of type ``kind``)."""
     for key in ("model_", "tucker_", "cp_"):
@@ -244,18 +226,13 @@ class _GradientFit(Solver):
     # -- contract ------------------------------------------------------------------------------
     def _initialize(self) -> None:
         M, Omega = self.M_, self.Omega_
-        self.fit_mask_ = Omega
-        self.holdout_mask_ = None
-        if self.holdout > 0:
-            self.holdout_mask_ = holdout_runs(Omega, self.holdout, self._gap_length(), self.generator_)
-            self.fit_mask_ = Omega & ~self.holdout_mask_
-            if not bool(self.holdout_mask_.any()):      # no observed run long enough: no holdout
-                self.holdout_mask_ = None
+        V = select_holdout("runs" if self.holdout > 0 else None, Omega, self.generator_,
+                           share=self.holdout)
+        self.holdout_ = HoldOut(Omega, V)
         self.model_ = self._start()
         self.scale_ = torch.linalg.vector_norm(torch.where(self.fit_mask_, M, torch.zeros_like(M))).detach()
         self.optimizer_ = self._make_optimizer()
         self.loss_scale_ = float(self.fit_mask_.sum()) if self.optimizer == "lbfgs" else 1.0
-        self.best_ = (math.inf, None)         # (held-out error, state) when holdout > 0
         self.prev_X_ = None
         self.losses_: list[float] = []
         self._plateau = 0
@@ -289,17 +266,15 @@ class _GradientFit(Solver):
             g["lr0"] = g["lr"]
         return torch.optim.Adam(groups)
 
-    def _gap_length(self) -> int:
-        """Median length of the gaps in the observed set (held-out runs copy it); 10 if none."""
-        T = self.Omega_.shape[0]
-        miss = ~self.Omega_.reshape(T, self.Omega_.shape[1], -1).all(dim=2)
-        pad = torch.zeros(1, miss.shape[1], dtype=torch.int8, device=miss.device)
-        edges = torch.diff(torch.cat([pad, miss.to(torch.int8), pad]), dim=0)
-        starts = torch.nonzero(edges.T == 1)
-        stops = torch.nonzero(edges.T == -1)
-        if starts.shape[0] == 0:
-            return 10
-        return int((stops[:, 1] - starts[:, 1]).median())
+    @property
+    def fit_mask_(self) -> Tensor:
+        """The observed entries the objective sees (the held-out ones excluded)."""
+        return self.holdout_.fit_mask
+
+    @property
+    def holdout_mask_(self) -> Tensor | None:
+        """The held-out observed entries (None: no hold-out)."""
+        return self.holdout_.V
 
     def step(self) -> dict[str, float]:
         """One optimizer step on the observed objective, then the retraction."""
@@ -329,14 +304,11 @@ class _GradientFit(Solver):
             self.prev_X_ = X
             R = torch.where(self.fit_mask_, X - self.M_, torch.zeros_like(X))
             info["fit"] = float(torch.linalg.vector_norm(R) / self.scale_)   # relative observed residual
-            if self.holdout_mask_ is not None:
-                H = self.holdout_mask_
-                info["val"] = float(torch.sqrt(torch.where(H, X - self.M_, torch.zeros_like(X)).pow(2).sum()
-                                               / H.sum().clamp(min=1)))
-                if info["val"] < self.best_[0]:
-                    self.best_ = (info["val"], {k: v.detach().clone() for k, v in model.state_dict().items()})
+            if self.holdout_.active:
+                info["val"] = self.holdout_.rmse(X, self.M_)
+                self.holdout_.offer(info["val"], self._snapshot, self.n_iter_ + 1)
             info["lr"] = float(opt.param_groups[0]["lr"])
-        self.losses_.append(info["val"] if self.holdout_mask_ is not None else info["loss"])
+        self.losses_.append(info["val"] if self.holdout_.active else info["loss"])
         self._schedule()
         return info
 
@@ -373,12 +345,16 @@ class _GradientFit(Solver):
     def finalize(self) -> None:
         """End of fit: restore the best held-out iterate (if any), drop the optimizer state and any
         parametrization, so that ``model_`` is a plain TuckerTensor / CPTensor."""
-        if self.holdout_mask_ is not None and self.best_[1] is not None:
+        if self.holdout_.best_state is not None:
             with torch.no_grad():
-                self.model_.load_state_dict(self.best_[1])
+                self.model_.load_state_dict(self.holdout_.best_state)
+            self.chosen_iter_ = self.holdout_.best_iter
         for name in list(getattr(self.model_, "parametrizations", {}) or {}):
             parametrize.remove_parametrizations(self.model_, name, leave_parametrized=True)
         self.prev_X_ = None
+
+    def _snapshot(self) -> dict[str, Tensor]:
+        return {k: v.detach().clone() for k, v in self.model_.state_dict().items()}
 
     def _estimate(self) -> Tensor:
         with torch.no_grad():

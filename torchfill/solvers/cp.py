@@ -52,7 +52,7 @@ import torch
 from .. import ops
 from .base import Param, Solver, register
 from .factorized import CPTensor
-from .holdout import shifted_gap_holdout
+from .holdout import HoldOut, select_holdout, shifted_gap_holdout  # noqa: F401 (old import path)
 
 Tensor = torch.Tensor
 _TINY = 1e-300
@@ -236,13 +236,13 @@ class _HALSCP(Solver):
             raise ValueError(f"{self.name}: expected a third-order tensor "
                              f"(frames x markers x xyz), "
                              f"found shape {tuple(M.shape)}")
-        self.V_ = shifted_gap_holdout(Omega, self.generator_) if self.holdout else None
-        self.W_ = Omega & ~self.V_ if self.V_ is not None else Omega     # training entries
+        V = select_holdout("shifted_gaps" if self.holdout else None, Omega, self.generator_,
+                           share=0.2)
+        # better only by a clear margin: min_gain relative, 1e-9 absolute (unit-variance data)
+        self.holdout_ = HoldOut(Omega, V, min_gain=self.min_gain, atol=1e-9)
         self.X_ = complete(M, self.W_, self._interp(self.W_))            # linear-interp start
-        self.searching_ = self.V_ is not None
+        self.searching_ = self.holdout_.active
         self.chosen_ = False                     # True once the hold-out has chosen the rank
-        self.best_: tuple[float, int, dict] | None = None
-        self.bad_ = 0
         self.val_history_: list[tuple[int, float]] = []
         self.nu_ = math.inf
         self.inner_steps_ = 0
@@ -258,6 +258,11 @@ class _HALSCP(Solver):
         shape = self.M_.shape
         filled = ops.interp_linear(self.M_.reshape(shape[0], -1), W.reshape(shape[0], -1))
         return filled.reshape(shape)
+
+    @property
+    def W_(self) -> Tensor:
+        """The training entries: observed and not held out (all observed once the rank is chosen)."""
+        return self.holdout_.fit_mask
 
     @property
     def rank_(self) -> int:
@@ -333,38 +338,32 @@ class _HALSCP(Solver):
     def _on_stall(self, Y: Tensor, E: Tensor, info: dict) -> None:
         """The fit at this rank has stalled: score it on the hold-out, then grow (Eq. 36)."""
         if self.searching_:
-            V = self.V_
-            zero = torch.zeros((), dtype=Y.dtype, device=Y.device)
-            err = float(torch.where(V, self.M_ - Y, zero).norm()
-                        / V.sum().sqrt())
+            err = self.holdout_.rmse(Y, self.M_)
             info["holdout_rmse"] = err
             self.val_history_.append((self.rank_, err))
-            # better only by a clear margin: min_gain relative, 1e-9 absolute (unit-variance data)
-            if self.best_ is None or err + 1e-9 < (1.0 - self.min_gain) * self.best_[0]:
-                state = {k: v.clone() for k, v in self.cp_.state_dict().items()}
-                self.best_ = (err, self.rank_, state)
-                self.bad_ = 0
-            else:
-                self.bad_ += 1
-            if self.bad_ > self.patience or self.rank_ >= self.rank_max:
+            self.holdout_.offer(err, self._snapshot, self.n_iter_ + 1)
+            if self.holdout_.n_bad > self.patience or self.rank_ >= self.rank_max:
                 self._finish_search()
                 return
         if self.chosen_:
             info["final_stall"] = 1.0
             return
-        if self.rank_ < self.rank_max and (self.searching_ or not self.holdout or self.V_ is None):
+        if self.rank_ < self.rank_max:
             self._add_component(E)
             self.nu_ = math.inf
 
+    def _snapshot(self) -> dict[str, Tensor]:
+        return {k: v.clone() for k, v in self.cp_.state_dict().items()}
+
     def _finish_search(self) -> None:
         """Restore the rank with the best held-out error; refit with every observed entry."""
-        _, R, state = self.best_
+        state = self.holdout_.release()
         self.cp_.weights = state["weight_vector"]
         self.cp_.factors = [state[f"factor_{n}"] for n in range(3)]
         self.searching_ = False
         self.chosen_ = True
-        self.rank_chosen_ = R
-        self.W_ = self.Omega_
+        self.rank_chosen_ = self.rank_
+        self.chosen_iter_ = self.holdout_.best_iter
         self.X_ = complete(self.M_, self.W_, self.model())
         self.nu_ = math.inf
 

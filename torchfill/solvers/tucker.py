@@ -41,7 +41,9 @@ import torch
 from .. import ops
 from .base import Param, Solver, register
 from .factorized import TuckerTensor
-from .holdout import shifted_gap_holdout
+from .holdout import HoldOut, segment_holdout, select_holdout
+
+holdout_segments = segment_holdout      # the old name (one release)
 
 Tensor = torch.Tensor
 
@@ -220,64 +222,6 @@ def relative_interp(M: Tensor, Omega: Tensor) -> Tensor:
 
 
 # ---------------------------------------------------------------------------------------------
-# Validation segments (observed data only)
-# ---------------------------------------------------------------------------------------------
-def holdout_segments(Omega: Tensor, n_segments: int, length: int | None,
-                     generator: torch.Generator) -> Tensor:
-    """Pick ``n_segments`` runs of ``length`` frames on random markers where the marker is observed
-    throughout (and not next to another chosen run); returns the held-out mask ``(T, J, ...)``.
-
-    ``length=None`` uses the median length of the recording's own gaps (from the mask), clipped to
-    ``[5, T // 8]``. Only the positions of observed samples are used, never a value.
-    """
-    obs = Omega.reshape(Omega.shape[0], Omega.shape[1], -1).all(dim=2)       # (T, J) sample observed
-    T, J = obs.shape
-    if length is None:
-        length = _median_gap(~obs) or 50
-    length = int(max(1, min(max(length, 5), max(T // 8, 1))))
-    hold = torch.zeros(T, J, dtype=torch.bool, device=Omega.device)
-    if T < 4 * length or n_segments == 0:
-        return hold.reshape(T, J, *([1] * (Omega.ndim - 2))).expand_as(Omega).clone()
-    # a run may start at t if obs[t:t+length] all True (cumulative counts), with a margin of one
-    c = torch.cat([torch.zeros(1, J, dtype=torch.long, device=Omega.device),
-                   torch.cumsum(obs.long(), dim=0)])
-    ok = (c[length:] - c[:-length]) == length                                 # (T-length+1, J)
-    tried = 0
-    while int(hold.any(dim=0).sum()) < J and tried < 20 * n_segments:
-        tried += 1
-        j = int(torch.randint(J, (1,), generator=generator, device=generator.device))
-        starts = torch.nonzero(ok[:, j]).flatten()
-        if starts.numel() == 0:
-            continue
-        a = int(starts[int(torch.randint(starts.numel(), (1,), generator=generator, device=generator.device))])
-        lo, hi = max(0, a - length), min(T, a + 2 * length)
-        if bool(hold[lo:hi, j].any()):
-            continue
-        hold[a:a + length, j] = True
-        if len(_runs(hold)) >= n_segments:
-            break
-    return hold.reshape(T, J, *([1] * (Omega.ndim - 2))).expand_as(Omega).clone()
-
-
-def _runs(hold: Tensor) -> list[tuple[int, int, int]]:
-    out = []
-    h = torch.nn.functional.pad(hold.to(torch.int8).T, (1, 1))
-    d = torch.diff(h, dim=1)
-    for j in range(hold.shape[1]):
-        a = torch.nonzero(d[j] == 1).flatten().tolist()
-        b = torch.nonzero(d[j] == -1).flatten().tolist()
-        out.extend((j, s, e) for s, e in zip(a, b))
-    return out
-
-
-def _median_gap(missing: Tensor) -> int:
-    lengths = [e - s for _, s, e in _runs(missing)]
-    if not lengths:
-        return 0
-    return int(sorted(lengths)[len(lengths) // 2])
-
-
-# ---------------------------------------------------------------------------------------------
 # Solvers
 # ---------------------------------------------------------------------------------------------
 def _eps_list(value, owner: str) -> list[float]:
@@ -375,25 +319,22 @@ class Tucker(Solver):
         self.eps_candidates_ = _eps_list(self.eps, self.name)
         self.eps_ = self.eps_candidates_[0]
         self.R0_ = R0
-        # validation segments: hidden from the fit during the search phase
+        # held-out observed samples: hidden from the fit during the search phase
+        V = None
         if self.selection == "holdout":
-            V = None
-            if self.holdout == "shifted_gaps":
-                V = shifted_gap_holdout(self.Omega_, self.generator_, max_share=self.holdout_share)
-            self.holdout_ = V if V is not None else holdout_segments(
-                self.Omega_, self.val_segments, self.val_length, self.generator_)
-        else:
-            self.holdout_ = torch.zeros_like(self.Omega_)
-        self.searching_ = bool(self.holdout_.any())
-        self.n_holdout_ = math.sqrt(max(int(self.holdout_.sum()), 1))
-        self.Omega_fit_ = self.Omega_ & ~self.holdout_
+            V = select_holdout(self.holdout, self.Omega_, self.generator_, share=self.holdout_share,
+                               n_segments=self.val_segments, length=self.val_length)
+        self.holdout_ = HoldOut(self.Omega_, V)
+        self.searching_ = self.holdout_.active
+        self.search_end_iter_ = 0
         self._start(R0)
-        self.best_ = None
-        self.best_val_ = math.inf
-        self.best_iter_ = 0
         self.schedule_best_ = (math.inf, 0)
         self.rank_max_full_ = list(self.rank_max_)
-        self.phase_iter_ = 0
+
+    @property
+    def Omega_fit_(self) -> Tensor:
+        """The observed entries the fit sees (all of them once the search has ended)."""
+        return self.holdout_.fit_mask
 
     def _start(self, R: Sequence[int]) -> None:
         """Centroid-relative linear interpolation of the fitted gaps, then truncated HOSVD."""
@@ -431,33 +372,39 @@ class Tucker(Solver):
             info = {"delta": delta, "residual": r, "rank_change": change,
                     "R1": A[0].shape[1], "R2": A[1].shape[1], "R3": A[2].shape[1]}
             if self.searching_:
-                E = torch.where(self.holdout_, X - self.M_, torch.zeros((), dtype=X.dtype, device=X.device))
-                info["val_rmse"] = float(torch.linalg.norm(E)) / self.n_holdout_
+                info["val_rmse"] = self.holdout_.rmse(X, self.M_)
+                self._select(info, self.n_iter_ + 1)
             return info
 
     # -- stopping / selection ---------------------------------------------------------------
-    def should_stop(self, info: dict[str, float]) -> bool:
-        self.phase_iter_ += 1
-        if not self.searching_:
-            return info["delta"] < self.tol
+    def _select(self, info: dict[str, float], it: int) -> None:
+        """Search phase, after iteration ``it``: keep the best held-out iterate (over all
+        schedules), and move to the next ``eps`` schedule or end the search when this one has
+        stalled (``patience``) or converged at full rank."""
         val = info["val_rmse"]
-        if val < self.best_val_:                      # best over all schedules: restored at the end
-            self.best_val_, self.best_iter_ = val, self.n_iter_
-            self.best_ = (self.X_.clone(), self.tucker_.core.clone(),
-                          [a.clone() for a in self.tucker_.factors], self.residual_)
+        self.holdout_.offer(val, self._snapshot, it)
         if val < self.schedule_best_[0]:              # best of this schedule: drives the patience
-            self.schedule_best_ = (val, self.n_iter_)
+            self.schedule_best_ = (val, it)
         ranks_done = all(a.shape[1] >= m for a, m in zip(self.tucker_.factors, self.rank_max_))
-        stalled = self.n_iter_ - self.schedule_best_[1] >= self.patience
+        stalled = it - self.schedule_best_[1] >= self.patience
         converged = ranks_done and info["delta"] < self.tol
-        if self.n_iter_ >= self.max_iter - 1:
-            self._end_search()
+        if it >= self.max_iter - 1:
+            self._end_search(it)
         elif stalled or converged:
             if len(self.eps_candidates_) > 1:
                 self._next_schedule()
             else:
-                self._end_search()
-        return False
+                self._end_search(it)
+
+    def _snapshot(self) -> tuple:
+        return (self.X_.clone(), self.tucker_.core.clone(),
+                [a.clone() for a in self.tucker_.factors], self.residual_)
+
+    def should_stop(self, info: dict[str, float]) -> bool:
+        """After the search (not in the iteration that ended it): relative change of X below ``tol``."""
+        if self.searching_ or self.n_iter_ <= self.search_end_iter_:
+            return False
+        return info["delta"] < self.tol
 
     def _next_schedule(self) -> None:
         """Run the rank schedule again from the same start with the next ``eps``; the best
@@ -465,22 +412,21 @@ class Tucker(Solver):
         self.eps_candidates_ = self.eps_candidates_[1:]
         self.eps_ = self.eps_candidates_[0]
         self.rank_max_ = list(self.rank_max_full_)
-        self.schedule_best_ = (math.inf, self.n_iter_)
+        self.schedule_best_ = (math.inf, self.n_iter_ + 1)
         self._start(self.R0_)
 
-    def _end_search(self) -> None:
-        """Restore the iterate with the best validation error, give the held-out data back,
+    def _end_search(self, it: int) -> None:
+        """Restore the iterate with the best held-out error, give the held-out data back,
         and continue at that rank (no further rank increases)."""
-        X, G, A, _ = self.best_
+        X, G, A, _ = self.holdout_.release()
         self.searching_ = False
-        self.Omega_fit_ = self.Omega_
+        self.search_end_iter_ = it
         self.X_ = torch.where(self.Omega_, self.M_, X)
         self.tucker_.core, self.tucker_.factors = G, A
         self.rank_max_ = [a.shape[1] for a in A]
         self.residual_ = self._observed_residual(tucker_to_tensor(G, A))
-        self.chosen_iter_ = self.best_iter_
+        self.chosen_iter_ = self.holdout_.best_iter
         self.chosen_rank_ = tuple(a.shape[1] for a in A)
-        self.phase_iter_ = 0
 
     def _estimate(self) -> Tensor:
         return self.X_
