@@ -7,6 +7,7 @@ Every filler is a ``torch.nn.Module`` with keyword-only hyperparameters, ``fit(X
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -64,6 +65,11 @@ class Param:
         return text + (" or None" if self.allow_none else "")
 
 
+def _deprecated(owner: str, old: str, new: str) -> None:
+    warnings.warn(f"{owner}: {old!r} is deprecated and will be removed in the next release; "
+                  f"use {new!r}", DeprecationWarning, stacklevel=4)
+
+
 _REGISTRY: dict[str, type["Solver"]] = {}
 
 
@@ -111,8 +117,14 @@ class Solver(nn.Module):
         "verbose": Param(False, bool, doc="print one line per iteration"),
     }
 
+    #: old hyperparameter spellings, accepted for one release with a DeprecationWarning: old -> new
+    renamed: ClassVar[dict[str, str]] = {}
+    #: old names of fitted attributes (read with a DeprecationWarning): old -> new
+    renamed_attributes: ClassVar[dict[str, str]] = {}
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__()
+        kwargs = self._upgrade(dict(kwargs))
         declared = self.declared_params()
         unknown = set(kwargs) - set(declared)
         if unknown:
@@ -130,6 +142,36 @@ class Solver(nn.Module):
         for klass in reversed(cls.__mro__):
             merged.update(getattr(klass, "params", {}) if issubclass(klass, Solver) else {})
         return merged
+
+    @classmethod
+    def _merged(cls, attr: str) -> dict[str, str]:
+        merged: dict[str, str] = {}
+        for klass in reversed(cls.__mro__):
+            merged.update(vars(klass).get(attr, {}) if issubclass(klass, Solver) else {})
+        return merged
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """Old spellings of hyperparameters (``renamed``) mapped to the new ones, with a
+        DeprecationWarning. Subclasses that changed a value's type translate it here too."""
+        for old, new in cls._merged("renamed").items():
+            if old in kwargs:
+                if new in kwargs:
+                    raise ValueError(f"{cls.name}: {old} and {new} given; {old} is the old name of {new}")
+                _deprecated(cls.name, old, new)
+                kwargs[new] = kwargs.pop(old)
+        return kwargs
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            cls = type(self)
+            new = {**cls._merged("renamed"), **cls._merged("renamed_attributes")}.get(name)
+            if new is None:
+                raise
+            _deprecated(cls.name, name, new)
+            return getattr(self, new)
 
     def get_params(self) -> dict[str, Any]:
         return {key: getattr(self, key) for key in self.declared_params()}
@@ -167,11 +209,16 @@ class Solver(nn.Module):
         self._initialize()
         return self
 
-    def interp_start(self) -> Tensor:
-        """The normalized data with gaps linearly interpolated along time (mode 1)."""
-        shape = self.M_.shape
-        M = self.M_.reshape(shape[0], -1)
-        return ops.interp_linear(M, self.Omega_.reshape(shape[0], -1)).reshape(shape)
+    def interp_start(self, observed: Tensor | None = None, *, relative: bool = False) -> Tensor:
+        """The one interpolation start: the normalized data with the gaps of ``observed`` (default
+        ``Omega_``; a fit mask leaves held-out samples out too) linearly interpolated along time,
+        or, ``relative=True``, relative to the centroid of the observed markers
+        (:func:`torchfill.ops.interp_relative`, which follows a travelling body)."""
+        observed = self.Omega_ if observed is None else observed
+        if relative:
+            return ops.interp_relative(self.M_, observed)
+        T = self.M_.shape[0]
+        return ops.interp_linear(self.M_.reshape(T, -1), observed.reshape(T, -1)).reshape(self.M_.shape)
 
     # -- the loop ------------------------------------------------------------------------------
     def fit(self, X: Tensor, mask: Tensor | None = None, *,

@@ -20,6 +20,7 @@ from typing import Any
 import torch
 
 from .. import ops
+from .base import Param, Solver
 
 Tensor = torch.Tensor
 
@@ -201,6 +202,32 @@ def select_holdout(kind: str | None, Omega: Tensor, generator: torch.Generator, 
     elif kind == "runs":
         V = run_holdout(Omega, share, length, generator)
     return V if V is not None and bool(V.any()) else None
+
+
+def holdout_params(kind: str | None, share: float, why: str = "") -> dict[str, Param]:
+    """The hold-out hyperparameters, the same names and meanings in every solver that has one."""
+    return {
+        "holdout": Param(kind, str, choices=KINDS, allow_none=True,
+                         doc="observed samples hidden from the fit to choose the rank/iterate: "
+                             "'shifted_gaps' = the recording's own gap pattern moved in time onto "
+                             "observed samples (falls back to 'segments'); 'segments' = "
+                             "single-marker observed runs; 'runs' = gap-shaped runs up to "
+                             "holdout_share; None = no hold-out (the paper's rule)" + why),
+        "holdout_share": Param(share, float, low=0.0, high=1.0, low_open=True,
+                               doc="at most this share of the observed samples is held out "
+                                   "('shifted_gaps', 'runs')"),
+        "holdout_segments": Param(12, int, low=1, doc="number of held-out runs ('segments')"),
+        "holdout_length": Param(None, int, low=1, allow_none=True,
+                                doc="frames per held-out run ('segments', 'runs'; None: the "
+                                    "median length of the recording's gaps)"),
+    }
+
+
+def holdout_for(solver: Solver, **kwargs: float) -> HoldOut:
+    """The :class:`HoldOut` of a fitting solver, from its hold-out hyperparameters."""
+    V = select_holdout(solver.holdout, solver.Omega_, solver.generator_, share=solver.holdout_share,
+                       n_segments=solver.holdout_segments, length=solver.holdout_length)
+    return HoldOut(solver.Omega_, V, **kwargs)
 
 
 class HoldOut:

@@ -74,6 +74,7 @@ from typing import Any
 
 import torch
 
+from .. import ops
 from .base import Param, Solver, register
 
 Tensor = torch.Tensor
@@ -106,10 +107,8 @@ def _eigh_desc(C: Tensor) -> tuple[Tensor, Tensor]:
 
 def complete_runs(item: Tensor) -> list[tuple[int, int]]:
     """``(start, stop)`` of every run of complete frames (all markers finite) of a ``(T, J, 3)``."""
-    ok = torch.isfinite(item).reshape(item.shape[0], -1).all(dim=1).to(torch.int8).cpu()
-    edges = torch.nonzero(torch.diff(torch.cat([torch.zeros(1, dtype=torch.int8), ok,
-                                                torch.zeros(1, dtype=torch.int8)]))).flatten().tolist()
-    return list(zip(edges[::2], edges[1::2]))
+    ok = torch.isfinite(item).reshape(item.shape[0], -1).all(dim=1)
+    return [(a, b) for _, a, b in ops.runs(ok[:, None])]
 
 
 def check_training(training, J: int, owner: str, *, dtype, device) -> list[Tensor]:
@@ -483,7 +482,7 @@ class PCATrain(_PCA):
                 out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
                                    centre=self.centre)
         else:
-            runs = [(a, b, j) for j, a, b in _runs(missing)]
+            runs = [(a, b, j) for j, a, b in ops.runs(missing)]
             runs = [r for r in runs if not bool(missing[r[0]:r[1]].all())]
             out = self._temporal_fill_runs(
                 Y, runs, lambda j: slice(3 * j, 3 * j + 3), lambda j: ~missing[:, j],
@@ -546,21 +545,9 @@ class PCABlackout(_PCA):
             n, s, S = self._spatial_stats()
             Y = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
                              centre=self.centre)
-        runs = [(a, b, None) for _, a, b in _runs(full[:, None])]
+        runs = [(a, b, None) for _, a, b in ops.runs(full[:, None])]
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
                                        self.window, self.edge_scale)
         observed = self.Omega_.reshape(T, -1)
         self.X_ = torch.where(observed, self.M_.reshape(T, -1), out).reshape(self.M_.shape)
         return {"delta": 0.0}
-
-
-def _runs(missing: Tensor) -> list[tuple[int, int, int]]:
-    """``(column, start, stop)`` of every run of True in a bool (T, J)."""
-    m = missing.to(torch.int8).cpu()
-    pad = torch.zeros(1, m.shape[1], dtype=torch.int8)
-    d = torch.diff(torch.cat([pad, m, pad]), dim=0)
-    runs = []
-    for j in range(m.shape[1]):
-        edges = torch.nonzero(d[:, j]).flatten().tolist()
-        runs.extend((j, a, b) for a, b in zip(edges[::2], edges[1::2]))
-    return runs
