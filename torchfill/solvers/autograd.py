@@ -100,24 +100,25 @@ def penalized_loss(X: Tensor, X_diff: Tensor | None, factors: Sequence[Tensor], 
     return f / n_obs
 
 
+def _model_loss(to_tensor, head: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor,
+                smooth_order: int, weights: dict) -> Tensor:
+    X = to_tensor(head, factors)
+    X_diff = None
+    if weights.get("lam_smooth", 0.0) > 0:          # the model with its time factor D_k A(1)
+        X_diff = to_tensor(head, [ops.difference(factors[0], smooth_order), *factors[1:]])
+    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
+
+
 def tucker_loss(G: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor, *,
                 smooth_order: int = 1, **weights) -> Tensor:
     """``f`` for the Tucker model ``G x_1 A(1) x_2 A(2) x_3 A(3)`` (see :func:`penalized_loss`)."""
-    X = ops.tucker_to_tensor(G, factors)
-    X_diff = None
-    if weights.get("lam_smooth", 0.0) > 0:
-        X_diff = ops.tucker_to_tensor(G, [ops.difference(factors[0], smooth_order), *factors[1:]])
-    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
+    return _model_loss(ops.tucker_to_tensor, G, factors, M, Omega, smooth_order, weights)
 
 
 def cp_loss(w: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor, *,
             smooth_order: int = 1, **weights) -> Tensor:
     """``f`` for the CP model ``sum_r w_r a_r(1) o a_r(2) o a_r(3)`` (see :func:`penalized_loss`)."""
-    X = ops.cp_to_tensor(w, factors)
-    X_diff = None
-    if weights.get("lam_smooth", 0.0) > 0:
-        X_diff = ops.cp_to_tensor(w, [ops.difference(factors[0], smooth_order), *factors[1:]])
-    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
+    return _model_loss(ops.cp_to_tensor, w, factors, M, Omega, smooth_order, weights)
 
 
 # ---------------------------------------------------------------------------------------------
