@@ -9,6 +9,8 @@ from .filling import UnfilledWarning, default_method, fill, methods
 from .io import FileFormatError, read, write
 from .metrics import score
 from .sequence import MarkerSequence
+from .solvers import NotConvergedWarning, Solver, get_solver
 
 __version__ = "0.1.0"
-__all__ = ["FileFormatError", "UnfilledWarning", "MarkerSequence", "default_method", "fill", "methods", "read", "score", "write"]
+__all__ = ["FileFormatError", "MarkerSequence", "NotConvergedWarning", "Solver", "UnfilledWarning",
+           "default_method", "fill", "get_solver", "methods", "read", "score", "write"]

@@ -172,8 +172,8 @@ class _GradientFit(Solver):
         "smooth_order": Param(1, int, choices=(1, 2), doc="difference order of the smoothness term"),
         "lam_l1": Param(0.0, float, low=0.0, doc="l1 weight on the factors (relative to "
                         "||P_Omega T||)"),
-        **holdout_params(None, 0.1, " -- the fit stops on the held-out error and keeps the best "
-                                    "iterate; None: stop on the observed objective"),
+        **holdout_params(None, 0.1, ", stop on the observed objective (with a hold-out the fit "
+                                    "stops on the held-out error and keeps the best iterate)"),
     }
     renamed_attributes = {"model_": "decomposition_"}
 

@@ -189,9 +189,8 @@ class _HALSCP(Solver):
                      doc="epsilon of Eq. 36: add a component when |nu - nu_old| / nu <= eps "
                          "(nu = observed squared residual); the authors use 1e-3, which took 3x "
                          "the sweeps for the same accuracy on CMU 02_01"),
-        **holdout_params("shifted_gaps", 0.2,
-                         " -- with a hold-out the rank grows while the held-out error improves; "
-                         "None grows to max_rank"),
+        **holdout_params("shifted_gaps", 0.2, ", the paper's rule: grow to max_rank (with a "
+                                              "hold-out the rank grows while its error improves)"),
         "patience": Param(5, int, low=0,
                           doc="rank increases without held-out improvement before the rank "
                               "search stops (chosen on CMU 02_01/85_02)"),
@@ -362,11 +361,8 @@ class _HALSCP(Solver):
 class CP(_HALSCP):
     """CP completion by HALS (Mohaoui & Dmytryshyn 2024, Algorithm 1 with Eqs. 22, 25, 26, 36).
 
-    Parameters
-    ----------
-    rank, max_rank, eps, holdout, patience, max_iter, tol, seed, verbose
-        See ``CP.declared_params()``; defaults chosen on CMU 02_01 and 85_02 with simulated gaps
-        and checked on every CMU and HDM05 recording in ``shared/data``.
+    Defaults chosen on CMU 02_01 and 85_02 with simulated gaps and checked on every CMU and
+    HDM05 recording in ``shared/data``.
 
     References
     ----------

@@ -212,7 +212,7 @@ def holdout_params(kind: str | None, share: float, why: str = "") -> dict[str, P
                              "'shifted_gaps' = the recording's own gap pattern moved in time onto "
                              "observed samples (falls back to 'segments'); 'segments' = "
                              "single-marker observed runs; 'runs' = gap-shaped runs up to "
-                             "holdout_share; None = no hold-out (the paper's rule)" + why),
+                             "holdout_share; None = no hold-out" + why),
         "holdout_share": Param(share, float, low=0.0, high=1.0, low_open=True,
                                doc="at most this share of the observed samples is held out "
                                    "('shifted_gaps', 'runs')"),

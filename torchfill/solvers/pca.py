@@ -75,7 +75,7 @@ from typing import Any
 import torch
 
 from .. import ops
-from .base import Param, Solver, register
+from .base import Param, Solver, _deprecated, register
 
 Tensor = torch.Tensor
 
@@ -301,9 +301,8 @@ class _PCA(Solver):
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "training": Param(None, (list, tuple), allow_none=True,
-                          doc="list of (T_i, J, 3) arrays with the data's markers in order (NaN "
-                              "allowed: only complete frames are used); None = the complete frames "
-                              "of the recording itself"),
+                          doc="deprecated (one release): pass the training data to "
+                              "fit(X, mask, training=...) or torchfill.fill(..., training=...)"),
         "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
                           doc="rank r = fewest eigenvectors explaining this share of the training "
                               "variance (0.9999: chosen among 0.99-0.99999 on the development "
@@ -408,13 +407,25 @@ class _PCA(Solver):
             out[a:b, cols] = est[a - s0:b - s0]
         return out
 
+    #: fit(X, mask, training=...): list of (T_i, J, 3) arrays with the data's markers in order
+    #: (NaN allowed: only complete frames are used); None = the complete frames of the recording
+    fit_data = ("training",)
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict) -> dict:
+        """``training`` as a hyperparameter (old): still used, with a DeprecationWarning."""
+        if kwargs.get("training") is not None:
+            _deprecated(cls.name, "training= as a hyperparameter", "fit(X, mask, training=...)")
+        return super()._upgrade(kwargs)
+
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
         self.X_ = self.interp_start()
         self.bases_: dict[int, Tensor] = {}
         self.training_items_, self.training_key_ = None, None
-        if self.training is not None:
-            self.training_items_ = check_training(self.training, self.M_.shape[1], self.name,
+        training = self.fit_data_.get("training", self.training)
+        if training is not None:
+            self.training_items_ = check_training(training, self.M_.shape[1], self.name,
                                                   dtype=self.M_.dtype, device=self.M_.device)
             self.training_key_ = (_fingerprint(self.training_items_), str(self.M_.dtype),
                                   str(self.M_.device))
@@ -427,8 +438,10 @@ class _PCA(Solver):
 class PCATrain(_PCA):
     """Gap filling from a training set through a transformed principal eigenspace (Li et al. 2020).
 
-    Parameters
-    ----------
+    Notes
+    -----
+    On the hyperparameters (declared in Parameters above):
+
     training : list of (T_i, J, 3) arrays, optional
         Complete motion with the data's markers in order (see the module notes); None = the complete
         frames of the recording itself.
@@ -502,8 +515,10 @@ class PCABlackout(_PCA):
     leading eigenvectors of ``A A'`` over training pieces of the window's length, by the weighted
     least squares of Eq. 16.
 
-    Parameters
-    ----------
+    Notes
+    -----
+    On the hyperparameters (declared in Parameters above):
+
     training, rank, centre
         As in ``pca_train``.
     variance : float

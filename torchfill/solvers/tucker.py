@@ -213,9 +213,7 @@ class Tucker(Solver):
                          "Several values: the rank schedule runs once per value from the same start and "
                          "the held-out data choose (1e-2 suits long recordings with scattered gaps, 1e-4 "
                          "many markers missing at once in short ones, e.g. cmu_02_01)"),
-        **holdout_params("shifted_gaps", 0.05,
-                         " (the selection of the module docstring; None: the paper's schedule, "
-                         "last iterate)"),
+        **holdout_params("shifted_gaps", 0.05, ", the paper's schedule and its last iterate"),
         "patience": Param(40, int, low=1,
                           doc="search ends this many iterations after the best validation error"),
     }
