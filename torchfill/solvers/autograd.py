@@ -329,6 +329,11 @@ class _GradientFit(Solver):
             parametrize.remove_parametrizations(self.decomposition_, name, leave_parametrized=True)
         self.prev_X_ = None
 
+    @property
+    def rank_(self) -> tuple[int, ...]:
+        """The rank of the fitted model: (R1, R2, R3) for Tucker, (R,) for CP."""
+        return self.decomposition_.rank
+
     def _snapshot(self) -> dict[str, Tensor]:
         return {k: v.detach().clone() for k, v in self.decomposition_.state_dict().items()}
 
