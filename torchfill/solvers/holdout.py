@@ -239,7 +239,7 @@ class HoldOut:
         The observed entries.
     V : Tensor of bool or None
         The entries to hide (a subset of ``Omega``); None or empty: an inactive hold-out (the fit
-        sees everything, :meth:`offer` keeps nothing).
+        sees everything and :meth:`rmse` is nan).
     min_gain, atol : float
         A score counts as better only below ``(1 - min_gain) * best - atol``.
 
