@@ -60,7 +60,7 @@ def per_sweep(repeat: int, rank: int, sweeps: int = 20) -> None:
         X = truth.copy()
         X[mask] = np.nan
         for name_ in ("cp", "smooth_cp", "sparse_cp"):
-            solver = get_solver(name_, rank=rank, rank_max=rank, holdout=False)
+            solver = get_solver(name_, rank=rank, max_rank=rank, holdout=None)
             solver.initialize(torch.from_numpy(X))
             best = None
             for _ in range(repeat):

@@ -8,7 +8,6 @@ filled; "fresh" writes a new C3D through c3d.Writer.
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 import warnings
@@ -17,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 import torchfill
+from torchfill.data import data_dir
 
-DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DEFAULT = data_dir(Path(__file__).resolve().parents[1])
 FILES = ["hdm05_bd_05-01_01_120.c3d", "cmu_135_02.c3d", "ktk_walk.c3d",
          "numediart_03_rolling.c3d", "biomechzoo_hockey_wrist_shot_009.c3d",
          "ktk_racing_full.c3d", "osim_hamner_subject02_running.trc"]
@@ -47,7 +47,7 @@ def ezc3d_read(path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("data_dir", nargs="?", default=os.environ.get("TORCHFILL_DATA", DEFAULT))
+    parser.add_argument("data_dir", nargs="?", default=DEFAULT)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
     data = Path(args.data_dir)

@@ -9,7 +9,6 @@ runner's callbacks and CSV logger. Prints the best of ``--repeat`` runs and the 
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -17,11 +16,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchfill.data import data_dir
 from torchfill.lightning import CaseDataModule, Evaluation, HistoryLogger, fit, load_recording
 from torchfill.lightning.data import make_mask
 from torchfill.solvers import available, get_solver
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA = data_dir(Path(__file__).resolve().parents[1])
 
 
 def main() -> None:

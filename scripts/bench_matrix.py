@@ -26,6 +26,7 @@ import torch
 
 import torchfill
 from torchfill import gaps, metrics
+from torchfill.data import data_dir
 from torchfill.solvers import get_solver
 from torchfill.solvers.matrix import BandedCholesky, d2_system_bands, gram_svd, svt
 
@@ -33,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def load(name: str) -> np.ndarray:
-    path = Path(os.environ.get("TORCHFILL_DATA") or REPO / ".." / "shared" / "data") / name
+    path = data_dir(REPO) / name
     return np.asarray(torchfill.read(path).points, dtype=np.float64)
 
 

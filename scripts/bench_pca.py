@@ -10,7 +10,6 @@ Usage: .venv/bin/python scripts/bench_pca.py [--repeat 5] [--device cpu|cuda] [-
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -19,9 +18,10 @@ import torch
 
 import torchfill
 from torchfill import gaps, metrics
+from torchfill.data import data_dir
 from torchfill.solvers import get_solver, pca
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA = data_dir(Path(__file__).resolve().parents[1])
 
 
 def data(n_train: int = 2500):

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 import sys
 import warnings
 from collections import Counter
@@ -16,12 +15,13 @@ from pathlib import Path
 
 import torchfill
 from torchfill.cli import main as cli
+from torchfill.data import data_dir
 
-DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DEFAULT = data_dir(Path(__file__).resolve().parents[1])
 
 
 def run() -> None:
-    data = Path(sys.argv[1] if len(sys.argv) > 1 else os.environ.get("TORCHFILL_DATA", DEFAULT))
+    data = Path(sys.argv[1] if len(sys.argv) > 1 else DEFAULT)
     print("| file | points in file | frames x markers read | units | rate (Hz) | missing % | "
           "never observed | excluded as non-markers | storage | `info` |")
     print("|---|---|---|---|---|---|---|---|---|---|")

@@ -10,7 +10,6 @@ the interpolation errors and the singular value energy of both, to show the samp
 """
 from __future__ import annotations
 
-import os
 import sys
 import warnings
 from pathlib import Path
@@ -19,11 +18,10 @@ import numpy as np
 
 import torchfill
 from torchfill import gaps, metrics
-from torchfill.data import sample_path
+from torchfill.data import data_dir, sample_path
 from torchfill.data.synth import synthetic_walk
 
-DATA_DIR = Path(os.environ.get("TORCHFILL_DATA")
-                or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA_DIR = data_dir(Path(__file__).resolve().parents[1])
 
 
 def make() -> None:

@@ -11,13 +11,14 @@ helper module of your own (see ``tests/io/iohelpers.py``).
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
+from torchfill.data import data_dir
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
-DATA_DIR = Path(os.environ.get("TORCHFILL_DATA") or (REPO_ROOT / ".." / "shared" / "data")).resolve()
+DATA_DIR = data_dir(REPO_ROOT)
 
 
 @pytest.fixture(scope="session")

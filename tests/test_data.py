@@ -68,3 +68,11 @@ def test_linear_interpolation_error_on_sample_is_realistic(sample):
         out = torchfill.fill(np.where(mask[..., None], np.nan, P), method="linear")
         errors.append(metrics.rmse_missing(out, P, mask))
     assert 30.0 < np.mean(errors) < 1.5 * 59.3
+
+
+def test_data_dir_env_first_then_beside_the_checkout(tmp_path, monkeypatch):
+    from torchfill.data import data_dir
+    monkeypatch.delenv("TORCHFILL_DATA", raising=False)
+    assert data_dir(tmp_path / "repo") == (tmp_path / "shared" / "data").resolve()
+    monkeypatch.setenv("TORCHFILL_DATA", str(tmp_path / "elsewhere"))
+    assert data_dir(tmp_path / "repo") == (tmp_path / "elsewhere").resolve()

@@ -63,6 +63,40 @@ def test_multi_mode_dot_skip_and_transpose():
     torch.testing.assert_close(got, torch.einsum("tjc,ti,ck->ijk", X, A[0], A[2]))
 
 
+def test_ops_follow_tensorly_conventions():
+    """The direct torch contractions agree with TensorLy's (row-major unfolding, mode order)."""
+    import tensorly as tl
+    from tensorly import tenalg
+    X = rand(7, 5, 3, seed=20)
+    A = [rand(4, 7, seed=21), rand(2, 5, seed=22), rand(3, 3, seed=23)]
+    with tl.backend_context("pytorch"):
+        for n in range(3):
+            assert torch.equal(ops.unfold(X, n), tl.unfold(X, n))
+            torch.testing.assert_close(ops.mode_dot(X, A[n], n), tenalg.mode_dot(X, A[n], n))
+        torch.testing.assert_close(ops.multi_mode_dot(X, A), tenalg.multi_mode_dot(X, A))
+        torch.testing.assert_close(ops.multi_mode_dot(X, [a.T for a in A], skip=1, transpose=True),
+                                   tenalg.multi_mode_dot(X, [a.T for a in A], skip=1, transpose=True))
+
+
+def test_khatri_rao_and_mttkrp_match_tensorly():
+    import tensorly as tl
+    from tensorly import tenalg
+    X = rand(6, 5, 3, seed=24)
+    A = [rand(6, 4, seed=25), rand(5, 4, seed=26), rand(3, 4, seed=27)]
+    with tl.backend_context("pytorch"):
+        torch.testing.assert_close(ops.khatri_rao(A[1], A[2]), tenalg.khatri_rao([A[1], A[2]]))
+        for n in range(3):
+            torch.testing.assert_close(ops.mttkrp(X, A, n), tenalg.unfolding_dot_khatri_rao(X, (torch.ones(4, dtype=X.dtype), A), n))
+
+
+def test_hosvd_reconstructs_a_tensor_of_that_rank():
+    G, A = rand(3, 2, 2, seed=28), [rand(9, 3, seed=29), rand(6, 2, seed=30), rand(3, 2, seed=31)]
+    X = ops.tucker_to_tensor(G, A)
+    core, factors = ops.hosvd(X, (3, 2, 2))
+    torch.testing.assert_close(ops.tucker_to_tensor(core, factors), X)
+    assert [f.shape for f in factors] == [(9, 3), (6, 2), (3, 2)]
+
+
 # -- proximal operators --------------------------------------------------------------------------
 def test_soft_threshold():
     x = torch.tensor([-3.0, -1.0, -0.5, 0.0, 0.5, 1.0, 3.0], dtype=torch.float64)
@@ -86,6 +120,34 @@ def test_svt_against_explicit_svd(tau):
     np.testing.assert_allclose(got.numpy(), (U * S) @ Vh, atol=1e-10)
     assert r == int((S > 0).sum())
     assert got.shape == M.shape
+
+
+@pytest.mark.parametrize("shape", [(300, 30), (30, 300)])
+def test_svt_gram_matches_svd(shape):
+    g = torch.Generator().manual_seed(1)
+    M = torch.randn(shape[0], 12, generator=g, dtype=torch.float64) @ torch.randn(12, shape[1], generator=g,
+                                                                                dtype=torch.float64)
+    S = torch.linalg.svdvals(M)
+    tau = float(S[4] + S[5]) / 2
+    (got, r), (want, r_full) = ops.svt(M, tau, "gram"), ops.svt(M, tau, "full")
+    assert r == r_full == 5 and torch.allclose(got, want, atol=1e-9)
+
+
+def test_energy_rank_and_difference_operators():
+    M = torch.diag(torch.tensor([3.0, 2.0, 1.0], dtype=torch.float64))     # energies 9, 4, 1
+    assert [ops.energy_rank(M, e) for e in (0.5, 0.9, 0.99)] == [1, 2, 3]
+    a, T = rand(11, seed=32), 11
+    D = torch.diff(torch.eye(T, dtype=torch.float64), dim=0)
+    torch.testing.assert_close(ops.difference(a, 1), D @ a)
+    torch.testing.assert_close(ops.difference_gram(a), D.T @ D @ a)
+    y = rand(T - 2, seed=33)
+    D2 = torch.diff(torch.eye(T, dtype=torch.float64), n=2, dim=0)
+    torch.testing.assert_close(ops.difference_adjoint(y, 2, T), D2.T @ y)
+
+
+def test_runs_lists_every_run_per_column():
+    mask = torch.tensor([[1, 0], [1, 1], [0, 1], [1, 0]], dtype=torch.bool)
+    assert ops.runs(mask) == [(0, 0, 2), (0, 3, 4), (1, 1, 3)]
 
 
 def test_svt_is_prox_of_nuclear_norm():

@@ -62,7 +62,11 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
-    get_solver(method, **{k: v for k, v in params.items() if k != "training"})  # validate early
+    training = params.pop("training", None)
+    solver = get_solver(method, **params)                           # validate early
+    if training is not None and "training" not in solver.fit_data:
+        raise ValueError(f"{method}: takes no training data; methods that do: "
+                         f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
     points, kind = _as_tensor(data)
     missing = ~torch.isfinite(points).all(dim=2)
     if mask is not None:
@@ -84,13 +88,13 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     info = {"method": method, "n_iter": 0, "seconds": 0.0}
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
-        if params.get("training") is not None:
-            params["training"] = _align_training(params["training"], data, keep.tolist(),
-                                                 points.shape[1])
+        extra = {}
+        if training is not None:
+            extra["training"] = _align_training(training, data, keep.tolist(), points.shape[1])
         solver = get_solver(method, **params)
         Xk = torch.where(unfit[:, keep, None], torch.nan, points[:, keep])
         start = time.perf_counter()
-        filled = solver.fit(Xk, unfit[:, keep], callback=progress).transform(Xk)
+        filled = solver.fit(Xk, unfit[:, keep], callback=progress, **extra).transform(Xk)
         info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)

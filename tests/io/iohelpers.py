@@ -6,16 +6,16 @@ recordings that need no shared data.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from torchfill.data import data_dir
 from torchfill.sequence import MarkerSequence
 
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-DATA_DIR = Path(os.environ.get("TORCHFILL_DATA") or (REPO_ROOT / ".." / "shared" / "data")).resolve()
+DATA_DIR = data_dir(REPO_ROOT)
 
 
 def data_files(*suffixes: str) -> list[Path]:

@@ -10,7 +10,8 @@ import torch
 
 from torchfill import ops
 from torchfill.solvers import available, get_solver
-from torchfill.solvers.autograd import cp_loss, holdout_runs, tucker_loss
+from torchfill.solvers.autograd import cp_loss, tucker_loss
+from torchfill.solvers.holdout import run_holdout
 from torchfill.solvers.factorized import CPTensor, TuckerTensor
 
 
@@ -91,7 +92,7 @@ def test_loss_terms_are_what_the_docstring_says():
 def test_fitted_model_in_a_user_training_loop():
     X, mask = tucker_data()
     solver = get_solver("grad_tucker", rank=(4, 4, 3), optimizer="lbfgs", max_iter=30).fit(X, mask)
-    model = solver.model_
+    model = solver.decomposition_
     assert type(model) is TuckerTensor
     params = list(model.parameters())
     assert len(params) == 4 and all(isinstance(p, torch.nn.Parameter) and p.requires_grad for p in params)
@@ -119,7 +120,7 @@ def test_fitted_model_in_a_user_training_loop():
 def test_cp_model_is_a_plain_module():
     X, mask = cp_data()
     solver = get_solver("grad_cp", rank=4, optimizer="lbfgs", max_iter=20).fit(X, mask)
-    model = solver.model_
+    model = solver.decomposition_
     assert type(model) is CPTensor and len(list(model.parameters())) == 4
     fresh = CPTensor(torch.zeros(4, dtype=torch.float64), [torch.zeros_like(A) for A in model.factors],
                      learn=True)
@@ -130,7 +131,7 @@ def test_cp_model_is_a_plain_module():
 def test_orthogonal_parametrization_is_removed_after_fit():
     X, mask = tucker_data(T=30, J=6)
     model = get_solver("grad_tucker", rank=(4, 4, 3), ortho="param", optimizer="lbfgs",
-                       max_iter=10).fit(X, mask).model_
+                       max_iter=10).fit(X, mask).decomposition_
     assert not hasattr(model, "parametrizations")
     assert set(model.state_dict()) == {"core_tensor", "factor_0", "factor_1", "factor_2"}
     for A in model.factors:
@@ -175,16 +176,16 @@ def test_dtype_follows_input():
     X[mask] = float("nan")
     solver = get_solver("grad_tucker", rank=(4, 4, 3), max_iter=20)
     F = solver.fit_transform(X)
-    assert F.dtype == torch.float32 and solver.model_.core.dtype == torch.float32
+    assert F.dtype == torch.float32 and solver.decomposition_.core.dtype == torch.float32
 
 
 def test_holdout_is_observed_only_and_gap_shaped():
     X, mask = tucker_data(T=200, J=10, missing=0.01)
     Omega = (~mask)[..., None].expand_as(X)
-    held = holdout_runs(Omega, 0.05, 20, torch.Generator().manual_seed(0))
+    held = run_holdout(Omega, 0.05, 20, torch.Generator().manual_seed(0))
     assert bool(held.any()) and not bool((held & ~Omega).any())
-    solver = get_solver("grad_tucker", rank=(4, 4, 3), holdout=0.05, max_iter=30).fit(X, mask)
-    assert "val" in solver.history_[-1]
+    solver = get_solver("grad_tucker", rank=(4, 4, 3), holdout="runs", holdout_share=0.05, max_iter=30).fit(X, mask)
+    assert "holdout_rmse" in solver.history_[-1]
     assert not bool((solver.fit_mask_ & solver.holdout_mask_).any())
 
 
@@ -192,10 +193,10 @@ def test_step_is_one_optimizer_step_and_history_grows():
     X, mask = tucker_data(T=30, J=6)
     solver = get_solver("grad_tucker", rank=(4, 4, 3))
     solver.initialize(X, mask)
-    before = [p.detach().clone() for p in solver.model_.parameters()]
+    before = [p.detach().clone() for p in solver.decomposition_.parameters()]
     info = solver.step_and_record()
     assert solver.n_iter_ == 1 and len(solver.history_) == 1 and "loss" in info
-    assert any(not torch.equal(b, p) for b, p in zip(before, solver.model_.parameters()))
+    assert any(not torch.equal(b, p) for b, p in zip(before, solver.decomposition_.parameters()))
 
 
 def test_bad_hyperparameters():
@@ -220,17 +221,6 @@ def test_closed_form_start_is_the_closed_form_fit(monkeypatch):
     closed = made[0]
     assert closed.name == "tucker" and closed.n_iter_ > 0
     ref = ag._find_model(closed, TuckerTensor)
-    assert torch.allclose(solver.model_(), ref(), atol=1e-8)       # same tensor, normalized units
-    for A in solver.model_.factors:                                 # re-orthonormalized
+    assert torch.allclose(solver.decomposition_(), ref(), atol=1e-8)       # same tensor, normalized units
+    for A in solver.decomposition_.factors:                                 # re-orthonormalized
         assert torch.allclose(A.T @ A, torch.eye(A.shape[1], dtype=A.dtype), atol=1e-8)
-
-
-def test_einsum_reconstructions_match_ops():
-    from torchfill.solvers.autograd import cp_tensor, tucker_tensor
-    g = torch.Generator().manual_seed(5)
-    G = torch.randn(3, 2, 2, generator=g, dtype=torch.float64)
-    A = [torch.randn(n, r, generator=g, dtype=torch.float64) for n, r in zip((7, 5, 3), G.shape)]
-    assert torch.allclose(tucker_tensor(G, A), ops.tucker_to_tensor(G, A))
-    w = torch.rand(4, generator=g, dtype=torch.float64)
-    B = [torch.randn(n, 4, generator=g, dtype=torch.float64) for n in (7, 5, 3)]
-    assert torch.allclose(cp_tensor(w, B), ops.cp_to_tensor(w, B))

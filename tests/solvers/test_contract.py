@@ -7,6 +7,7 @@ gaps) with cheap hyperparameters from ``CHEAP`` (the contract, not the accuracy,
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 import warnings
 
@@ -53,11 +54,14 @@ CHEAP = {
     "linear": {}, "spline": {}, "pchip": {},
     "trnn": {"max_iter": 3, "inner_iter": 5},
     "trnn_d2": {"max_iter": 3, "inner_iter": 5},
-    "pca_train": {"training": [motion(seed=1)]},         # a separate complete training recording
-    "pca_blackout": {},                                  # training=None: the complete frames
+    "pca_blackout": {},                                  # no training data: the complete frames
     "grad_tucker": {"max_iter": 3, "rank": [3, 3, 3]},
     "grad_cp": {"max_iter": 3, "rank": 3},
 }
+
+
+#: Data besides X and mask that ``fit`` takes (a solver's ``fit_data``).
+FIT_DATA = {"pca_train": {"training": [motion(seed=1)]}}   # a separate complete training recording
 
 
 def cheap(method: str) -> dict:
@@ -77,20 +81,22 @@ def fitted(method: str, kind: str):
         warnings.simplefilter("ignore")
         if kind == "float64":
             solver = make(method)
-            return solver, solver.fit_transform(torch.from_numpy(GAPPY))
+            return solver, solver.fit_transform(torch.from_numpy(GAPPY), **FIT_DATA.get(method, {}))
         if kind == "float32":
             solver = make(method)
-            return solver, solver.fit_transform(torch.from_numpy(GAPPY).float())
+            return solver, solver.fit_transform(torch.from_numpy(GAPPY).float(),
+                                                **FIT_DATA.get(method, {}))
         if kind == "masked":
             # garbage at the masked samples: the solver must never see it
             X = torch.from_numpy(np.where(MASK[..., None], 1e6, TRUTH))
             solver = make(method)
-            return solver, solver.fit_transform(X, torch.from_numpy(MASK))
+            return solver, solver.fit_transform(X, torch.from_numpy(MASK), **FIT_DATA.get(method, {}))
         if kind == "fill_ndarray":
-            return None, torchfill.fill(GAPPY.copy(), method=method, **cheap(method))
+            return None, torchfill.fill(GAPPY.copy(), method=method, **cheap(method),
+                                        **FIT_DATA.get(method, {}))
         if kind == "complete":
             solver = make(method)
-            return solver, solver.fit_transform(torch.from_numpy(TRUTH))
+            return solver, solver.fit_transform(torch.from_numpy(TRUTH), **FIT_DATA.get(method, {}))
     raise AssertionError(kind)
 
 
@@ -115,9 +121,16 @@ def test_solver_is_module_with_declared_keyword_params(method):
     params = solver.get_params()
     assert set(params) == set(type(solver).declared_params())
     assert {"max_iter", "tol", "seed"} <= set(params)
+    signature = inspect.signature(type(solver))           # help() and IDEs show the hyperparameters
+    assert list(signature.parameters) == list(type(solver).declared_params())
+    doc = type(solver).__doc__
+    assert doc.count("\nParameters\n----------\n") == 1
     for key, spec in type(solver).declared_params().items():
         assert isinstance(spec, Param)
         assert spec.doc, f"{method}.{key} has no doc"
+        assert signature.parameters[key].kind is inspect.Parameter.KEYWORD_ONLY
+        assert signature.parameters[key].default == spec.default
+        assert f"\n{key} : " in doc, f"{method}.{key} missing from the generated Parameters"
     with pytest.raises(TypeError):
         type(solver)(3)                                  # keyword-only
 
@@ -182,7 +195,7 @@ def test_step_is_one_update(method):
     solver = make(method)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        solver.initialize(torch.from_numpy(GAPPY))
+        solver.initialize(torch.from_numpy(GAPPY), **FIT_DATA.get(method, {}))
         assert solver.n_iter_ == 0 and solver.history_ == []
         info = solver.step()
     assert isinstance(info, dict)
@@ -196,7 +209,7 @@ def test_device_follows_input(method):
     X = torch.from_numpy(GAPPY).cuda()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        out = make(method).fit_transform(X)
+        out = make(method).fit_transform(X, **FIT_DATA.get(method, {}))
     assert out.device == X.device and out.dtype == X.dtype
     assert_observed_kept(out, X)
     assert bool(torch.isfinite(out).all())
@@ -238,3 +251,13 @@ def test_unknown_hyperparameter_rejected(method):
         get_solver(method, not_a_param=1)
     with pytest.raises(ValueError, match="unknown hyperparameter"):
         torchfill.fill(GAPPY, method=method, not_a_param=1)
+
+
+def test_public_face_exports_and_not_converged_warning():
+    assert torchfill.Solver is Solver and torchfill.get_solver("tucker").name == "tucker"
+    assert issubclass(torchfill.NotConvergedWarning, UserWarning)
+    with pytest.warns(torchfill.NotConvergedWarning, match="max_iter=2"):
+        get_solver("svt", max_iter=2).fit(torch.from_numpy(GAPPY))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", torchfill.NotConvergedWarning)
+        get_solver("linear").fit(torch.from_numpy(GAPPY))          # one-shot: converged

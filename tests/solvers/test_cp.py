@@ -8,7 +8,9 @@ import torch
 import torchfill
 from torchfill import gaps, metrics
 from torchfill.solvers import get_solver
-from torchfill.solvers.cp import difference_gram, leading_rank_one, shifted_gap_holdout
+from torchfill.ops import difference_gram
+from torchfill.solvers.cp import leading_rank_one
+from torchfill.solvers.holdout import shifted_gap_holdout
 
 
 def _cp_tensor(shape, R, seed=0):
@@ -47,7 +49,7 @@ def test_cp_recovers_synthetic_rank5_tensor(holdout):
     missing = torch.rand(X.shape, generator=g) < 0.3
     Xm = X.clone()
     Xm[missing] = float("nan")
-    params = {"rank_max": 6, "holdout": False} if holdout is False else {"rank_max": 12}
+    params = {"max_rank": 6, "holdout": None} if holdout is False else {"max_rank": 12}
     solver = get_solver("cp", tol=1e-9, max_iter=3000, **params)
     out = solver.fit_transform(Xm)
     err = float((out - X).norm() / X.norm())
@@ -87,7 +89,7 @@ def test_holdout_never_takes_more_than_half_of_a_markers_samples():
 
 
 def _fit_fixed_rank(name, X, **params):
-    return get_solver(name, holdout=False, rank_max=8, max_iter=150, **params).fit(X)
+    return get_solver(name, holdout=None, max_rank=8, max_iter=150, **params).fit(X)
 
 
 def _noisy_low_rank():
@@ -102,7 +104,7 @@ def test_smooth_prior_gives_smoother_time_factors():
     X = _noisy_low_rank()
     roughness = {}
     for name in ("cp", "smooth_cp"):
-        A1 = _fit_fixed_rank(name, X).cp_.factors[0]
+        A1 = _fit_fixed_rank(name, X).decomposition_.factors[0]
         roughness[name] = float((torch.diff(A1, dim=0) ** 2).sum() / A1.shape[1])
     assert roughness["smooth_cp"] < 0.8 * roughness["cp"], roughness
 
@@ -111,7 +113,7 @@ def test_sparse_prior_gives_sparser_marker_factors():
     X = _noisy_low_rank()
     zeros, ratio = {}, {}
     for name, params in (("cp", {}), ("sparse_cp", {"alpha": 0.1})):
-        A2 = _fit_fixed_rank(name, X, **params).cp_.factors[1]
+        A2 = _fit_fixed_rank(name, X, **params).decomposition_.factors[1]
         zeros[name] = int((A2.abs() < 1e-12).sum())
         ratio[name] = float((A2.abs().sum(0) / A2.norm(dim=0)).mean())   # l1/l2 per column
     assert zeros["sparse_cp"] > zeros["cp"] and ratio["sparse_cp"] < ratio["cp"], (zeros, ratio)

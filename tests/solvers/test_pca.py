@@ -51,7 +51,7 @@ def test_pca_train_exact_on_subspace(centre):
     mask = gaps.evenly_spaced(200, J, n_gaps=5, gap_length=60, seed=3)
     Xg = X.clone()
     Xg[torch.as_tensor(mask)] = float("nan")
-    out = get_solver("pca_train", training=[draw(150), draw(120)], centre=centre).fit_transform(Xg)
+    out = get_solver("pca_train", centre=centre).fit_transform(Xg, training=[draw(150), draw(120)])
     assert _rel(out, X, mask) < 1e-6
     assert torch.equal(out[torch.as_tensor(~mask)], X[torch.as_tensor(~mask)])
 
@@ -76,8 +76,8 @@ def test_pca_blackout_exact_on_temporal_subspace():
     training = [draw() for _ in range(3)]
     for edge in (1.0, None):
         for prior in (True, False):
-            out = get_solver("pca_blackout", training=training, edge_scale=edge,
-                             prior=prior).fit_transform(Bg)
+            out = get_solver("pca_blackout", edge_scale=edge,
+                             prior=prior).fit_transform(Bg, training=training)
             assert _rel(out, B, mask) < 1e-6
 
 
@@ -96,7 +96,7 @@ def test_pca_blackout_with_partial_gaps_exact():
     mask[20:24, 3] = mask[150:170, 5] = True
     Bg = B.clone()
     Bg[torch.as_tensor(mask)] = float("nan")
-    out = get_solver("pca_blackout", training=[draw() for _ in range(4)]).fit_transform(Bg)
+    out = get_solver("pca_blackout").fit_transform(Bg, training=[draw() for _ in range(4)])
     assert torch.equal(out[torch.as_tensor(~mask)], B[torch.as_tensor(~mask)])
     assert _rel(out, B, mask) < 1e-6
 
@@ -108,8 +108,8 @@ def test_pca_train_horizontal_exact_on_temporal_subspace():
     mask[60:100, 2] = mask[120:150, 7] = True
     Bg = B.clone()
     Bg[torch.as_tensor(mask)] = float("nan")
-    out = get_solver("pca_train", training=[draw() for _ in range(2)], layout="horizontal",
-                     window=200).fit_transform(Bg)
+    out = get_solver("pca_train", layout="horizontal",
+                     window=200).fit_transform(Bg, training=[draw() for _ in range(2)])
     assert _rel(out, B, mask) < 1e-6
 
 
@@ -120,7 +120,7 @@ def test_too_few_complete_training_frames():
     train = draw(50)
     train[5:, 4] = float("nan")                            # only 5 complete frames remain
     with pytest.raises(ValueError, match="5 complete frames"):
-        get_solver("pca_train", training=[train]).fit(X)
+        get_solver("pca_train").fit(X, training=[train])
     with pytest.raises(ValueError, match="complete frames"):
         bad = X.clone()
         bad[::2, 1] = bad[1::2, 2] = float("nan")          # no complete frame in the recording
@@ -132,7 +132,7 @@ def test_blackout_needs_long_enough_stretches():
     B = draw()
     B[80:100] = float("nan")
     with pytest.raises(ValueError, match="at least 200 frames.*longest found has 150"):
-        get_solver("pca_blackout", training=[draw()[:150]]).fit(B)
+        get_solver("pca_blackout").fit(B, training=[draw()[:150]])
 
 
 def test_training_marker_mismatch():
@@ -140,12 +140,22 @@ def test_training_marker_mismatch():
     X = draw(100)
     X[10:30, 0] = float("nan")
     with pytest.raises(ValueError, match=r"training\[1\] expected shape \(T, 12, 3\).*found \(80, 11, 3\)"):
-        get_solver("pca_train", training=[draw(80), draw(80)[:, :11]]).fit(X)
+        get_solver("pca_train").fit(X, training=[draw(80), draw(80)[:, :11]])
 
 
-def test_training_param_type():
-    with pytest.raises(ValueError, match="training expected list or tuple"):
+def test_training_hyperparameter_is_deprecated_but_still_used():
+    with pytest.raises(ValueError, match="training expected list or tuple"), \
+            pytest.warns(DeprecationWarning):
         get_solver("pca_train", training="walk.c3d")
+    draw = spatial_data()
+    X = draw(100)
+    X[10:30, 0] = float("nan")
+    train = [draw(150)]
+    with pytest.warns(DeprecationWarning, match="fit"):
+        old = get_solver("pca_train", training=train).fit_transform(X)
+    assert torch.equal(old, get_solver("pca_train").fit_transform(X, training=train))
+    with pytest.raises(ValueError, match="unexpected data"):
+        get_solver("tucker").fit(X, training=train)
 
 
 def test_eigenspace_cached_across_fills():
@@ -213,7 +223,7 @@ def test_self_share_uses_own_complete_frames():
     mask[100:200] = gaps.evenly_spaced(100, J, n_gaps=4, gap_length=30, seed=0)
     Xg = X.clone()
     Xg[torch.as_tensor(mask)] = float("nan")
-    own = get_solver("pca_train", training=[wrong], self_share=1.0).fit_transform(Xg)
-    other = get_solver("pca_train", training=[wrong], self_share=0.0).fit_transform(Xg)
+    own = get_solver("pca_train", self_share=1.0).fit_transform(Xg, training=[wrong])
+    other = get_solver("pca_train", self_share=0.0).fit_transform(Xg, training=[wrong])
     assert _rel(own, X, mask) < 1e-6
     assert _rel(other, X, mask) > 1e-2

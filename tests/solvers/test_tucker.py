@@ -9,6 +9,7 @@ import torchfill
 from torchfill import gaps, metrics, ops
 from torchfill.solvers import get_solver
 from torchfill.solvers import tucker as tk
+from torchfill.solvers.holdout import segment_holdout
 
 
 def _low_rank(shape=(60, 20, 3), rank=(4, 4, 3), seed=0):
@@ -16,24 +17,6 @@ def _low_rank(shape=(60, 20, 3), rank=(4, 4, 3), seed=0):
     G = torch.randn(*rank, generator=g, dtype=torch.float64)
     A = [torch.randn(I, R, generator=g, dtype=torch.float64) for I, R in zip(shape, rank)]
     return ops.tucker_to_tensor(G, A), G, A
-
-
-def test_mode_products_match_tensorly():
-    X, G, A = _low_rank()
-    assert torch.allclose(tk.tucker_to_tensor(G, A), ops.multi_mode_dot(G, A), atol=1e-12)
-    B = [torch.linalg.qr(torch.randn(I, 3, dtype=torch.float64)).Q for I in X.shape]
-    assert torch.allclose(tk.project(X, B), ops.multi_mode_dot(X, B, transpose=True), atol=1e-12)
-    for n in range(3):
-        assert torch.equal(tk.ops_unfold(X, n), ops.unfold(X, n))
-
-
-def test_svt_gram_matches_svd():
-    g = torch.Generator().manual_seed(1)
-    M = torch.randn(300, 12, generator=g, dtype=torch.float64) @ torch.randn(12, 30, generator=g,
-                                                                             dtype=torch.float64)
-    S = torch.linalg.svdvals(M)
-    tau = float(S[5])
-    assert torch.allclose(tk.svt_gram(M, tau), ops.svt(M, tau)[0], atol=1e-9)
 
 
 def test_apg_agrees_with_closed_form():
@@ -51,7 +34,7 @@ def test_apg_agrees_with_closed_form():
 def test_apg_solver_matches_closed_form_solver():
     X, _, _ = _low_rank((50, 10, 3), (5, 5, 3), seed=3)
     X[torch.rand(X.shape, generator=torch.Generator().manual_seed(4)) < 0.2] = float("nan")
-    common = dict(max_iter=15, selection="last", lam=0.05, rho_x=0.2)
+    common = dict(max_iter=15, holdout=None, lam=0.05, rho_x=0.2)
     a = get_solver("tucker_tnn", x_step="closed_form", **common).fit_transform(X)
     b = get_solver("tucker_tnn", x_step="apg", apg_step=0.7, apg_iter=400, **common).fit_transform(X)
     assert torch.allclose(a, b, atol=1e-6)
@@ -80,7 +63,7 @@ def test_exact_recovery_low_multilinear_rank(method, seed):
     Xm = X.clone()
     Xm[missing] = float("nan")
     extra = {"lam": 0.0} if method == "tucker_tnn" else {}
-    solver = get_solver(method, rank=(5, 5, 3), delta_rank=0, selection="last", max_iter=300,
+    solver = get_solver(method, rank=(5, 5, 3), delta_rank=0, holdout=None, max_iter=300,
                         tol=1e-12, rho_x=0.0, **extra)
     out = solver.fit_transform(Xm)
     rel = torch.linalg.norm(out - X) / torch.linalg.norm(X)
@@ -93,7 +76,7 @@ def test_rank_increase_grows_and_orthonormalizes():
     A = [torch.linalg.qr(torch.randn(40, 4, dtype=torch.float64)).Q,
          torch.linalg.qr(torch.randn(10, 3, dtype=torch.float64)).Q,
          torch.eye(3, dtype=torch.float64)]
-    B, grown = tk.increase_rank(A, rank_max=(6, 10, 3), delta_rank=(4, 2, 1), generator=g)
+    B, grown = tk.increase_rank(A, max_rank=(6, 10, 3), delta_rank=(4, 2, 1), generator=g)
     assert grown and [b.shape[1] for b in B] == [6, 5, 3]
     for b in B:
         assert torch.allclose(b.T @ b, torch.eye(b.shape[1], dtype=torch.float64), atol=1e-12)
@@ -104,7 +87,7 @@ def test_holdout_segments_only_on_observed_samples():
     T, J = 400, 12
     mask = gaps.multi_gap(T, J, n_markers=5, gap_length=30, max_gaps=3, seed=0)
     Omega = torch.from_numpy(~mask)[..., None].expand(T, J, 3)
-    hold = tk.holdout_segments(Omega, 6, None, torch.Generator().manual_seed(0))
+    hold = segment_holdout(Omega, 6, None, torch.Generator().manual_seed(0))
     assert hold.any() and not (hold & ~Omega).any()
     runs = metrics.gap_runs(hold[..., 0].numpy())
     assert len(runs) == 6 and all(b - a == 30 for _, a, b in runs)   # the data's own gap length

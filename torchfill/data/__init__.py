@@ -6,6 +6,7 @@ by :func:`torchfill.data.synth.synthetic_walk` and written by torchfill itself
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ..sequence import MarkerSequence
@@ -19,6 +20,16 @@ def sample_path() -> Path:
     return Path(__file__).resolve().parent / SAMPLE_NAME
 
 
+def data_dir(beside: str | Path | None = None) -> Path:
+    """The folder of the real recordings used for development (not shipped): ``$TORCHFILL_DATA``,
+    or else ``shared/data`` beside the checkout ``beside`` (default: the working directory), i.e.
+    ``<beside>/../shared/data``. The folder may be absent: callers skip or say so."""
+    env = os.environ.get("TORCHFILL_DATA")
+    if env:
+        return Path(env).resolve()
+    return (Path(beside) if beside is not None else Path.cwd()).resolve().parent / "shared" / "data"
+
+
 def load_sample() -> MarkerSequence:
     """The shipped sample, read with :func:`torchfill.read` (no gaps: simulate your own)."""
     from ..io import read
@@ -26,4 +37,4 @@ def load_sample() -> MarkerSequence:
     return read(sample_path())
 
 
-__all__ = ["load_sample", "sample_path", "synthetic_walk"]
+__all__ = ["data_dir", "load_sample", "sample_path", "synthetic_walk"]

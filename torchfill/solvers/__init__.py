@@ -1,7 +1,7 @@
 """Solvers and their registry. Importing this package registers every method."""
 from importlib import import_module
 
-from .base import Param, Solver, available, get_solver, register
+from .base import NotConvergedWarning, Param, Solver, available, get_solver, register
 
 # One module per family; each registers its methods on import. (Modules not written yet are
 # skipped while the families land in parallel; see the issues.)
@@ -12,4 +12,4 @@ for _module in ("interp", "matrix", "pca", "tucker", "cp", "autograd"):
         if _err.name != f"{__name__}.{_module}":
             raise
 
-__all__ = ["Param", "Solver", "available", "get_solver", "register"]
+__all__ = ["NotConvergedWarning", "Param", "Solver", "available", "get_solver", "register"]

@@ -29,7 +29,7 @@ backward pass); with L-BFGS the QR retraction reaches 7e-5 and the parametrizati
 ``ortho="param"`` stays available (the parametrization is removed at the end of ``fit``).
 
 Stopping is honest: on the observed objective (relative decrease over ``patience`` steps below
-``tol``), or on a held-out set of OBSERVED samples (``holdout > 0``: gap-shaped runs of observed
+``tol``), or on a held-out set of OBSERVED samples (``holdout="runs"``: gap-shaped runs of observed
 samples removed from the fit; the iterate with the lowest held-out error is kept). The truth of the
 missing entries is never seen.
 
@@ -47,7 +47,6 @@ J. Kossaifi et al., "TensorLy-Torch" (factorized tensors as modules holding para
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 
 import torch
@@ -55,8 +54,11 @@ from torch import nn
 from torch.nn.utils import parametrizations, parametrize
 
 from .. import ops
-from .base import Param, Solver, available, get_solver, register
+from .base import Param, Solver, _deprecated, available, get_solver, register
 from .factorized import CPTensor, TuckerTensor
+from .holdout import holdout_for, holdout_params, run_holdout
+
+holdout_runs = run_holdout      # the old name (one release)
 
 Tensor = torch.Tensor
 
@@ -64,13 +66,6 @@ Tensor = torch.Tensor
 # ---------------------------------------------------------------------------------------------
 # The objective: pure functions of tensors (gradcheck-able)
 # ---------------------------------------------------------------------------------------------
-def difference(A: Tensor, order: int) -> Tensor:
-    """``D_k A``: first (``order=1``) or second (``order=2``) difference along the rows (time)."""
-    for _ in range(order):
-        A = A[1:] - A[:-1]
-    return A
-
-
 def penalized_loss(X: Tensor, X_diff: Tensor | None, factors: Sequence[Tensor], M: Tensor,
                    Omega: Tensor, *, lam_tnn: float = 0.0, lam_smooth: float = 0.0,
                    lam_l1: float = 0.0, scale: float | Tensor | None = None) -> Tensor:
@@ -105,87 +100,41 @@ def penalized_loss(X: Tensor, X_diff: Tensor | None, factors: Sequence[Tensor], 
     return f / n_obs
 
 
-_LETTERS = "abcdefghijklm"
-
-
-def tucker_tensor(G: Tensor, factors: Sequence[Tensor]) -> Tensor:
-    """``G x_1 A(1) x_2 A(2) ...`` as one ``einsum`` (same as ``ops.tucker_to_tensor``, tested; the
-    TensorLy backend context costs more than the contraction at these sizes)."""
-    r, i = _LETTERS[:G.ndim], _LETTERS[G.ndim:2 * G.ndim]
-    return torch.einsum(",".join([r] + [i[n] + r[n] for n in range(G.ndim)]) + "->" + i, G, *factors)
-
-
-def cp_tensor(w: Tensor, factors: Sequence[Tensor]) -> Tensor:
-    """``sum_r w_r a_r(1) o a_r(2) o ...`` as one ``einsum`` (same as ``ops.cp_to_tensor``)."""
-    i = _LETTERS[:len(factors)]
-    return torch.einsum(",".join(["z"] + [c + "z" for c in i]) + "->" + i, w, *factors)
+def _model_loss(to_tensor, head: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor,
+                smooth_order: int, weights: dict) -> Tensor:
+    X = to_tensor(head, factors)
+    X_diff = None
+    if weights.get("lam_smooth", 0.0) > 0:          # the model with its time factor D_k A(1)
+        X_diff = to_tensor(head, [ops.difference(factors[0], smooth_order), *factors[1:]])
+    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
 
 
 def tucker_loss(G: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor, *,
                 smooth_order: int = 1, **weights) -> Tensor:
     """``f`` for the Tucker model ``G x_1 A(1) x_2 A(2) x_3 A(3)`` (see :func:`penalized_loss`)."""
-    X = tucker_tensor(G, factors)
-    X_diff = None
-    if weights.get("lam_smooth", 0.0) > 0:
-        X_diff = tucker_tensor(G, [difference(factors[0], smooth_order), *factors[1:]])
-    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
+    return _model_loss(ops.tucker_to_tensor, G, factors, M, Omega, smooth_order, weights)
 
 
 def cp_loss(w: Tensor, factors: Sequence[Tensor], M: Tensor, Omega: Tensor, *,
             smooth_order: int = 1, **weights) -> Tensor:
     """``f`` for the CP model ``sum_r w_r a_r(1) o a_r(2) o a_r(3)`` (see :func:`penalized_loss`)."""
-    X = cp_tensor(w, factors)
-    X_diff = None
-    if weights.get("lam_smooth", 0.0) > 0:
-        X_diff = cp_tensor(w, [difference(factors[0], smooth_order), *factors[1:]])
-    return penalized_loss(X, X_diff, factors, M, Omega, **weights)
+    return _model_loss(ops.cp_to_tensor, w, factors, M, Omega, smooth_order, weights)
 
 
 # ---------------------------------------------------------------------------------------------
 # Starts and ranks (observed data only)
 # ---------------------------------------------------------------------------------------------
 def energy_rank(X: Tensor, mode: int, energy: float) -> int:
-    """Smallest ``R`` whose leading singular values of ``unfold(X, mode)`` hold ``energy`` of
-    ``||X||_F^2`` (applied to the interpolation-filled data, never to complete data)."""
-    s2 = torch.linalg.svdvals(ops.unfold(X, mode)) ** 2
-    share = torch.cumsum(s2, 0) / s2.sum().clamp(min=torch.finfo(s2.dtype).tiny)
-    return int((share < energy).sum()) + 1 if s2.numel() else 1
-
-
-def hosvd(X: Tensor, rank: Sequence[int]) -> tuple[Tensor, list[Tensor]]:
-    """Truncated HOSVD: ``A(n)`` = leading left singular vectors of ``X_(n)``, ``G = X x_n A(n)^T``."""
-    factors = [torch.linalg.svd(ops.unfold(X, n), full_matrices=False)[0][:, :R]
-               for n, R in enumerate(rank)]
-    return ops.multi_mode_dot(X, factors, transpose=True), factors
-
-
-def holdout_runs(Omega: Tensor, fraction: float, length: int, generator: torch.Generator) -> Tensor:
-    """A gap-shaped held-out set: runs of ``length`` frames of OBSERVED samples on random markers,
-    drawn until about ``fraction`` of the observed samples are held out. Returns a bool mask
-    (full shape, True = held out); the fit never sees these samples, stopping watches them."""
-    T = Omega.shape[0]
-    obs = Omega.reshape(T, Omega.shape[1], -1).all(dim=2)           # (T, J) samples fully observed
-    target = fraction * float(obs.sum())
-    held = torch.zeros_like(obs)
-    length = max(1, min(length, T // 4))
-    for _ in range(10_000):
-        if float(held.sum()) >= target:
-            break
-        j = int(torch.randint(obs.shape[1], (1,), generator=generator, device=obs.device))
-        t0 = int(torch.randint(max(1, T - length + 1), (1,), generator=generator, device=obs.device))
-        free = obs[t0:t0 + length, j] & ~held[t0:t0 + length, j]
-        kept = int((obs[:, j] & ~held[:, j]).sum()) - length
-        if bool(free.all()) and kept >= int(obs[:, j].sum()) // 2:   # keep half of each marker
-            held[t0:t0 + length, j] = True
-    return held.reshape(held.shape + (1,) * (Omega.ndim - 2)).expand_as(Omega) & Omega
+    """The energy rank (:func:`torchfill.ops.energy_rank`) of ``unfold(X, mode)`` (applied to the
+    interpolation-filled data, never to complete data)."""
+    return ops.energy_rank(ops.unfold(X, mode), energy)
 
 
 def _find_model(solver: Solver, kind: type) -> nn.Module:
     """The closed-form solver's factorized tensor (its learned ``*_`` attribute of type ``kind``)."""
-    for key in ("model_", "tucker_", "cp_"):
-        value = getattr(solver, key, None)
-        if isinstance(value, kind):
-            return value
+    value = getattr(solver, "decomposition_", None)
+    if isinstance(value, kind):
+        return value
     found = [k for k, v in vars(solver).get("_modules", {}).items() if isinstance(v, kind)]
     if found:
         return getattr(solver, found[0])
@@ -223,10 +172,22 @@ class _GradientFit(Solver):
         "smooth_order": Param(1, int, choices=(1, 2), doc="difference order of the smoothness term"),
         "lam_l1": Param(0.0, float, low=0.0, doc="l1 weight on the factors (relative to "
                         "||P_Omega T||)"),
-        "holdout": Param(0.0, float, low=0.0, high=0.3, doc="fraction of observed samples held "
-                         "out (gap-shaped runs) to stop on and to pick the iterate; 0: stop on the "
-                         "observed objective"),
+        **holdout_params(None, 0.1, ", stop on the observed objective (with a hold-out the fit "
+                                    "stops on the held-out error and keeps the best iterate)"),
     }
+    renamed_attributes = {"model_": "decomposition_"}
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict) -> dict:
+        """``holdout=<share>`` (old, a float) is ``holdout="runs", holdout_share=<share>``."""
+        old = kwargs.get("holdout")
+        if isinstance(old, (int, float)) and not isinstance(old, bool):
+            new = "runs" if old > 0 else None
+            _deprecated(cls.name, f"holdout={old}", f"holdout={new!r}, holdout_share={old}")
+            kwargs["holdout"] = new
+            if old > 0:
+                kwargs.setdefault("holdout_share", float(old))
+        return super()._upgrade(kwargs)
 
     #: default relative Adam step (see the ``lr`` doc)
     adam_lr = 1e-2
@@ -243,26 +204,18 @@ class _GradientFit(Solver):
 
     # -- contract ------------------------------------------------------------------------------
     def _initialize(self) -> None:
-        M, Omega = self.M_, self.Omega_
-        self.fit_mask_ = Omega
-        self.holdout_mask_ = None
-        if self.holdout > 0:
-            self.holdout_mask_ = holdout_runs(Omega, self.holdout, self._gap_length(), self.generator_)
-            self.fit_mask_ = Omega & ~self.holdout_mask_
-            if not bool(self.holdout_mask_.any()):      # no observed run long enough: no holdout
-                self.holdout_mask_ = None
-        self.model_ = self._start()
+        M = self.M_
+        self.holdout_ = holdout_for(self)
+        self.decomposition_ = self._start()
         self.scale_ = torch.linalg.vector_norm(torch.where(self.fit_mask_, M, torch.zeros_like(M))).detach()
         self.optimizer_ = self._make_optimizer()
         self.loss_scale_ = float(self.fit_mask_.sum()) if self.optimizer == "lbfgs" else 1.0
-        self.best_ = (math.inf, None)         # (held-out error, state) when holdout > 0
         self.prev_X_ = None
         self.losses_: list[float] = []
         self._plateau = 0
 
     def _start(self) -> nn.Module:
-        T = self.M_.shape[0]       # gaps (and held-out samples) linearly interpolated in time
-        X0 = ops.interp_linear(self.M_.reshape(T, -1), self.fit_mask_.reshape(T, -1)).reshape(self.M_.shape)
+        X0 = self.interp_start(self.fit_mask_)     # gaps (and held-out samples) interpolated
         if self.init == "closed_form":
             return self._closed_form_start(X0)
         return self._build(X0)
@@ -277,7 +230,7 @@ class _GradientFit(Solver):
         return self._from_closed_form(cf)
 
     def _make_optimizer(self) -> torch.optim.Optimizer:
-        params = [p for p in self.model_.parameters() if p.requires_grad]
+        params = [p for p in self.decomposition_.parameters() if p.requires_grad]
         if self.optimizer == "lbfgs":
             return torch.optim.LBFGS(params, lr=self.lr or 1.0, max_iter=1, max_eval=25, history_size=20,
                                      line_search_fn="strong_wolfe", tolerance_grad=0.0,
@@ -289,21 +242,19 @@ class _GradientFit(Solver):
             g["lr0"] = g["lr"]
         return torch.optim.Adam(groups)
 
-    def _gap_length(self) -> int:
-        """Median length of the gaps in the observed set (held-out runs copy it); 10 if none."""
-        T = self.Omega_.shape[0]
-        miss = ~self.Omega_.reshape(T, self.Omega_.shape[1], -1).all(dim=2)
-        pad = torch.zeros(1, miss.shape[1], dtype=torch.int8, device=miss.device)
-        edges = torch.diff(torch.cat([pad, miss.to(torch.int8), pad]), dim=0)
-        starts = torch.nonzero(edges.T == 1)
-        stops = torch.nonzero(edges.T == -1)
-        if starts.shape[0] == 0:
-            return 10
-        return int((stops[:, 1] - starts[:, 1]).median())
+    @property
+    def fit_mask_(self) -> Tensor:
+        """The observed entries the objective sees (the held-out ones excluded)."""
+        return self.holdout_.fit_mask
+
+    @property
+    def holdout_mask_(self) -> Tensor | None:
+        """The held-out observed entries (None: no hold-out)."""
+        return self.holdout_.V
 
     def step(self) -> dict[str, float]:
         """One optimizer step on the observed objective, then the retraction."""
-        model, opt = self.model_, self.optimizer_
+        opt = self.optimizer_
         params = [p for g in opt.param_groups for p in g["params"]]
 
         def closure() -> Tensor:
@@ -329,14 +280,11 @@ class _GradientFit(Solver):
             self.prev_X_ = X
             R = torch.where(self.fit_mask_, X - self.M_, torch.zeros_like(X))
             info["fit"] = float(torch.linalg.vector_norm(R) / self.scale_)   # relative observed residual
-            if self.holdout_mask_ is not None:
-                H = self.holdout_mask_
-                info["val"] = float(torch.sqrt(torch.where(H, X - self.M_, torch.zeros_like(X)).pow(2).sum()
-                                               / H.sum().clamp(min=1)))
-                if info["val"] < self.best_[0]:
-                    self.best_ = (info["val"], {k: v.detach().clone() for k, v in model.state_dict().items()})
+            if self.holdout_.active:
+                info["holdout_rmse"] = self.holdout_.rmse(X, self.M_)
+                self.holdout_.offer(info["holdout_rmse"], self._snapshot, self.n_iter_ + 1)
             info["lr"] = float(opt.param_groups[0]["lr"])
-        self.losses_.append(info["val"] if self.holdout_mask_ is not None else info["loss"])
+        self.losses_.append(info["holdout_rmse"] if self.holdout_.active else info["loss"])
         self._schedule()
         return info
 
@@ -372,13 +320,22 @@ class _GradientFit(Solver):
 
     def finalize(self) -> None:
         """End of fit: restore the best held-out iterate (if any), drop the optimizer state and any
-        parametrization, so that ``model_`` is a plain TuckerTensor / CPTensor."""
-        if self.holdout_mask_ is not None and self.best_[1] is not None:
+        parametrization, so that ``decomposition_`` is a plain TuckerTensor / CPTensor."""
+        if self.holdout_.best_state is not None:
             with torch.no_grad():
-                self.model_.load_state_dict(self.best_[1])
-        for name in list(getattr(self.model_, "parametrizations", {}) or {}):
-            parametrize.remove_parametrizations(self.model_, name, leave_parametrized=True)
+                self.decomposition_.load_state_dict(self.holdout_.best_state)
+            self.chosen_iter_ = self.holdout_.best_iter
+        for name in list(getattr(self.decomposition_, "parametrizations", {}) or {}):
+            parametrize.remove_parametrizations(self.decomposition_, name, leave_parametrized=True)
         self.prev_X_ = None
+
+    @property
+    def rank_(self) -> tuple[int, ...]:
+        """The rank of the fitted model: (R1, R2, R3) for Tucker, (R,) for CP."""
+        return self.decomposition_.rank
+
+    def _snapshot(self) -> dict[str, Tensor]:
+        return {k: v.detach().clone() for k, v in self.decomposition_.state_dict().items()}
 
     def _estimate(self) -> Tensor:
         with torch.no_grad():
@@ -395,7 +352,7 @@ class GradTucker(_GradientFit):
 
     The model is a :class:`TuckerTensor` with ``learn=True`` (core and factors are parameters); the
     factors stay column-orthonormal (QR retraction, or ``ortho="param"``:
-    ``torch.nn.utils.parametrizations.orthogonal``). After ``fit``, ``model_`` is a plain
+    ``torch.nn.utils.parametrizations.orthogonal``). After ``fit``, ``decomposition_`` is a plain
     ``nn.Module`` a user can keep training in a loop of their own.
 
     Ranks ``(R1, R2, R3)``: given, or by the energy rule on the interpolation-filled data (the
@@ -433,11 +390,13 @@ class GradTucker(_GradientFit):
         return tuple(max(1, min(int(R), int(I), math.prod(shape) // int(I))) for R, I in zip(rank, shape))
 
     def _build(self, X0: Tensor) -> nn.Module:
-        G, factors = hosvd(X0, self._ranks(X0))
-        return self._wrap(G, factors)
+        return self._orthogonal(TuckerTensor.from_tensor(X0, self._ranks(X0), learn=True))
 
     def _wrap(self, G: Tensor, factors: Sequence[Tensor]) -> TuckerTensor:
-        model = TuckerTensor(G.detach().clone(), [A.detach().clone() for A in factors], learn=True)
+        return self._orthogonal(TuckerTensor(G.detach().clone(), [A.detach().clone() for A in factors],
+                                             learn=True))
+
+    def _orthogonal(self, model: TuckerTensor) -> TuckerTensor:
         if self.ortho == "param":
             for n in range(model.n_modes):
                 if model.factors[n].shape[1] > 1 or model.factors[n].shape[0] > 1:
@@ -452,17 +411,17 @@ class GradTucker(_GradientFit):
         return self._wrap(ops.multi_mode_dot(X, Q, transpose=True), Q)
 
     def _tensor(self) -> Tensor:
-        return tucker_tensor(self.model_.core, self.model_.factors)
+        return ops.tucker_to_tensor(self.decomposition_.core, self.decomposition_.factors)
 
     def _loss(self, Omega: Tensor) -> Tensor:
-        m = self.model_
+        m = self.decomposition_
         return tucker_loss(m.core, m.factors, self.M_, Omega, scale=self.scale_, **self._weights())
 
     def _retract(self) -> None:
         """``A(n) = Q R`` (thin QR), ``G <- G x_n R``: orthonormal factors, same tensor."""
         if self.ortho != "qr":
             return
-        m = self.model_
+        m = self.decomposition_
         G = m.core.detach()
         for n, A in enumerate(m.factors):
             Q, R = torch.linalg.qr(A.detach(), mode="reduced")
@@ -508,17 +467,10 @@ class GradCP(_GradientFit):
         R = self.rank
         if R is None:
             R = min(self.max_rank, max(1, round(self.rank_factor * energy_rank(X0, 0, self.energy))))
-        # TensorLy's SVD init pads R > I_n with random columns, but breaks when
-        # prod(other dims) < R <= I_n: use a random init there
-        broken = any(X0.numel() // I < R <= I for I in X0.shape)
-        init = "random" if broken else "svd"
-        import tensorly as tl
-        from tensorly.decomposition import parafac
-        with tl.backend_context("pytorch"), warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # SVD init pads R > I_n with random columns
-            w, factors = parafac(X0, rank=R, init=init, n_iter_max=50, tol=1e-8,
-                                 normalize_factors=True, random_state=self.seed)
-        return self._wrap(w, factors)
+        model = CPTensor.from_tensor(X0, R, seed=self.seed, learn=True)
+        with torch.no_grad():
+            self._normalize(model)
+        return model
 
     def _wrap(self, w: Tensor, factors: Sequence[Tensor]) -> CPTensor:
         model = CPTensor(w.detach().clone(), [A.detach().clone() for A in factors], learn=True)
@@ -531,10 +483,10 @@ class GradCP(_GradientFit):
         return self._wrap(src.weights, src.factors)
 
     def _tensor(self) -> Tensor:
-        return cp_tensor(self.model_.weights, self.model_.factors)
+        return ops.cp_to_tensor(self.decomposition_.weights, self.decomposition_.factors)
 
     def _loss(self, Omega: Tensor) -> Tensor:
-        m = self.model_
+        m = self.decomposition_
         return cp_loss(m.weights, m.factors, self.M_, Omega, scale=self.scale_, **self._weights())
 
     @staticmethod
@@ -548,4 +500,4 @@ class GradCP(_GradientFit):
 
     def _retract(self) -> None:
         """Unit-norm factor columns, norms into the weights: same tensor."""
-        self._normalize(self.model_)
+        self._normalize(self.decomposition_)

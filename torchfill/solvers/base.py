@@ -6,7 +6,13 @@ Every filler is a ``torch.nn.Module`` with keyword-only hyperparameters, ``fit(X
 """
 from __future__ import annotations
 
+import functools
+import inspect
 import math
+import operator
+import re
+import textwrap
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -64,6 +70,71 @@ class Param:
         return text + (" or None" if self.allow_none else "")
 
 
+class NotConvergedWarning(UserWarning):
+    """A fit stopped at ``max_iter`` before its stopping rule was met (the result is the last, or
+    the best held-out, iterate; raise ``max_iter`` or loosen ``tol``)."""
+
+
+def _type_names(spec: Param) -> str:
+    types = spec.types if isinstance(spec.types, tuple) else (spec.types,)
+    text = " or ".join(t.__name__ for t in types)
+    if spec.choices is not None:
+        text = "{" + ", ".join(repr(c) for c in spec.choices) + "}"
+    return text + (" or None" if spec.allow_none else "")
+
+
+def _annotation(spec: Param) -> Any:
+    types = spec.types if isinstance(spec.types, tuple) else (spec.types,)
+    ann = functools.reduce(operator.or_, types)
+    return ann | None if spec.allow_none else ann
+
+
+def parameters_section(params: dict[str, Param]) -> str:
+    """The numpydoc ``Parameters`` section of declared hyperparameters."""
+    lines = ["Parameters", "----------"]
+    for key, spec in params.items():
+        lines.append(f"{key} : {_type_names(spec)}, default {spec.default!r}")
+        lines.extend(textwrap.wrap(spec.doc or "(undocumented)", 92, initial_indent="    ",
+                                   subsequent_indent="    "))
+    return "\n".join(lines)
+
+
+_SECTION = re.compile(r"^(\w[\w ]*)\n-{3,}$", re.M)
+
+
+def _with_parameters(doc: str, section: str) -> str:
+    """``doc`` (cleaned) with its Parameters section replaced by ``section``, placed before the
+    first later numpydoc section (References, Notes, ...) or at the end."""
+    doc = inspect.cleandoc(doc)
+    heads = [(m.start(), m.group(1)) for m in _SECTION.finditer(doc)]
+    for i, (start, name) in enumerate(heads):
+        if name == "Parameters":
+            end = heads[i + 1][0] if i + 1 < len(heads) else len(doc)
+            doc = doc[:start].rstrip() + "\n\n" + doc[end:]
+            return _with_parameters(doc, section)
+    after = [start for start, name in heads if name not in ("Attributes",)]
+    at = after[0] if after else len(doc)
+    return (doc[:at].rstrip() + "\n\n" + section + "\n\n" + doc[at:]).rstrip() + "\n"
+
+
+class _ClassSignature:
+    """``Solver.__signature__`` on the class only: the keyword-only hyperparameters, so that
+    ``inspect.signature(cls)``, ``help()`` and IDEs show them (instances keep ``forward()``'s)."""
+
+    def __get__(self, obj: Any, cls: type) -> inspect.Signature:
+        if obj is not None:
+            raise AttributeError("__signature__")
+        return inspect.Signature([
+            inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=spec.default,
+                              annotation=_annotation(spec))
+            for key, spec in cls.declared_params().items()])
+
+
+def _deprecated(owner: str, old: str, new: str) -> None:
+    warnings.warn(f"{owner}: {old!r} is deprecated and will be removed in the next release; "
+                  f"use {new!r}", DeprecationWarning, stacklevel=4)
+
+
 _REGISTRY: dict[str, type["Solver"]] = {}
 
 
@@ -111,8 +182,23 @@ class Solver(nn.Module):
         "verbose": Param(False, bool, doc="print one line per iteration"),
     }
 
+    #: names of the data ``fit`` takes besides ``X`` and ``mask`` (e.g. ``("training",)``)
+    fit_data: ClassVar[tuple[str, ...]] = ()
+    #: old hyperparameter spellings, accepted for one release with a DeprecationWarning: old -> new
+    renamed: ClassVar[dict[str, str]] = {}
+    #: old names of fitted attributes (read with a DeprecationWarning): old -> new
+    renamed_attributes: ClassVar[dict[str, str]] = {}
+
+    __signature__ = _ClassSignature()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.__doc__ = _with_parameters(cls.__doc__ or cls.__name__,
+                                       parameters_section(cls.declared_params()))
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__()
+        kwargs = self._upgrade(dict(kwargs))
         declared = self.declared_params()
         unknown = set(kwargs) - set(declared)
         if unknown:
@@ -131,12 +217,51 @@ class Solver(nn.Module):
             merged.update(getattr(klass, "params", {}) if issubclass(klass, Solver) else {})
         return merged
 
+    @classmethod
+    def _merged(cls, attr: str) -> dict[str, str]:
+        merged: dict[str, str] = {}
+        for klass in reversed(cls.__mro__):
+            merged.update(vars(klass).get(attr, {}) if issubclass(klass, Solver) else {})
+        return merged
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """Old spellings of hyperparameters (``renamed``) mapped to the new ones, with a
+        DeprecationWarning. Subclasses that changed a value's type translate it here too."""
+        for old, new in cls._merged("renamed").items():
+            if old in kwargs:
+                if new in kwargs:
+                    raise ValueError(f"{cls.name}: {old} and {new} given; {old} is the old name of {new}")
+                _deprecated(cls.name, old, new)
+                kwargs[new] = kwargs.pop(old)
+        return kwargs
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            cls = type(self)
+            new = {**cls._merged("renamed"), **cls._merged("renamed_attributes")}.get(name)
+            if new is None:
+                raise
+            _deprecated(cls.name, name, new)
+            return getattr(self, new)
+
     def get_params(self) -> dict[str, Any]:
         return {key: getattr(self, key) for key in self.declared_params()}
 
     # -- data in -------------------------------------------------------------------------------
-    def initialize(self, X: Tensor, mask: Tensor | None = None) -> "Solver":
-        """Take the data and set up the state without iterating (the Lightning runners call this)."""
+    def initialize(self, X: Tensor, mask: Tensor | None = None, **data: Any) -> "Solver":
+        """Take the data and set up the state without iterating (the Lightning runners call this).
+
+        ``data``: what the solver takes besides ``X`` and ``mask`` (its ``fit_data``, e.g. the PCA
+        methods' ``training``), kept in ``fit_data_``.
+        """
+        unknown = set(data) - set(self.fit_data)
+        if unknown:
+            raise ValueError(f"{self.name}: fit() got unexpected data {sorted(unknown)}; expected "
+                             f"X, mask{''.join(', ' + k for k in self.fit_data)}")
+        self.fit_data_ = {k: v for k, v in data.items() if v is not None}
         X = torch.as_tensor(X)
         if X.ndim < 2:
             raise ValueError(f"{self.name}: expected a tensor with time as its first mode, found shape {tuple(X.shape)}")
@@ -167,25 +292,34 @@ class Solver(nn.Module):
         self._initialize()
         return self
 
-    def interp_start(self) -> Tensor:
-        """The normalized data with gaps linearly interpolated along time (mode 1)."""
-        shape = self.M_.shape
-        M = self.M_.reshape(shape[0], -1)
-        return ops.interp_linear(M, self.Omega_.reshape(shape[0], -1)).reshape(shape)
+    def interp_start(self, observed: Tensor | None = None, *, relative: bool = False) -> Tensor:
+        """The one interpolation start: the normalized data with the gaps of ``observed`` (default
+        ``Omega_``; a fit mask leaves held-out samples out too) linearly interpolated along time,
+        or, ``relative=True``, relative to the centroid of the observed markers
+        (:func:`torchfill.ops.interp_relative`, which follows a travelling body)."""
+        observed = self.Omega_ if observed is None else observed
+        if relative:
+            return ops.interp_relative(self.M_, observed)
+        T = self.M_.shape[0]
+        return ops.interp_linear(self.M_.reshape(T, -1), observed.reshape(T, -1)).reshape(self.M_.shape)
 
     # -- the loop ------------------------------------------------------------------------------
     def fit(self, X: Tensor, mask: Tensor | None = None, *,
-            callback: Callable[[dict[str, float]], None] | None = None) -> "Solver":
+            callback: Callable[[dict[str, float]], None] | None = None, **data: Any) -> "Solver":
         """Fit on ``X`` (NaN = missing, and/or ``mask`` True = missing); returns ``self``.
 
         ``callback``, if given, receives every iteration's history record (progress display).
+        ``data``: the solver's other data (``fit_data``, e.g. ``training=`` for the PCA methods).
         """
-        self.initialize(X, mask)
+        self.initialize(X, mask, **data)
         while not self.converged_ and self.n_iter_ < self.max_iter:
             record = self.step_and_record()
             if callback is not None:
                 callback(record)
         self.finalize()
+        if not self.converged_:
+            warnings.warn(f"{self.name}: stopped at max_iter={self.max_iter} before the stopping "
+                          f"rule was met", NotConvergedWarning, stacklevel=2)
         return self
 
     def finalize(self) -> None:
@@ -209,10 +343,10 @@ class Solver(nn.Module):
             return True
         return info.get("delta", math.inf) < self.tol
 
-    def fit_transform(self, X: Tensor, mask: Tensor | None = None) -> Tensor:
+    def fit_transform(self, X: Tensor, mask: Tensor | None = None, **data: Any) -> Tensor:
         """Fit, then return ``X`` with its missing entries filled; observed entries are ``X``'s own."""
         X = torch.as_tensor(X)
-        self.fit(X, mask)
+        self.fit(X, mask, **data)
         return self.transform(X)
 
     def transform(self, X: Tensor) -> Tensor:

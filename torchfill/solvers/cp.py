@@ -24,8 +24,8 @@ What differs from the authors' MATLAB demo (each measured on CMU 02_01, see
 * the rank is chosen honestly on observed data: a copy of the gap pattern, shifted in time, is held
   out of the observed entries; the rank grows while the held-out error improves (by at least
   ``min_gain``, ``patience`` tries); the best rank is restored and refitted with every observed
-  entry until ``nu`` stalls again (``holdout=False`` gives the paper's rule: grow until
-  ``rank_max``, stop when ``||X - X_old|| / ||X_old|| < tol``). Iterating the refit on to
+  entry until ``nu`` stalls again (``holdout=None`` gives the paper's rule: grow until
+  ``max_rank``, stop when ``||X - X_old|| / ||X_old|| < tol``). Iterating the refit on to
   ``tol = 1e-6`` slowly overfits: on CMU 02_01 (30 markers x 100 frames) the error rose from 6.0
   to 6.9 mm between sweeps 250 and 1000;
 * the SmoothCP penalty is relative to ``lam_r^2`` (scale-free ``alpha``), on the time mode only by
@@ -52,7 +52,8 @@ import torch
 from .. import ops
 from .base import Param, Solver, register
 from .factorized import CPTensor
-from .holdout import shifted_gap_holdout
+from .base import _deprecated
+from .holdout import holdout_for, holdout_params
 
 Tensor = torch.Tensor
 _TINY = 1e-300
@@ -61,33 +62,6 @@ _TINY = 1e-300
 # --------------------------------------------------------------------------------------------
 # Building blocks (plain functions on tensors, one per equation)
 # --------------------------------------------------------------------------------------------
-def difference_gram(a: Tensor) -> Tensor:
-    """``D^T D a`` for the first-difference operator ``D`` ((I-1) x I), in O(I) without ``D``."""
-    if a.shape[0] < 2:
-        return torch.zeros_like(a)
-    d = a[1:] - a[:-1]
-    return torch.cat([-d[:1], d[:-1] - d[1:], d[-1:]])
-
-
-def khatri_rao_pair(B: Tensor, C: Tensor) -> Tensor:
-    """Column-wise Kronecker product: row ``j * K + d`` is ``B[j] * C[d]`` (shape ``JK x R``)."""
-    return (B[:, None, :] * C[None, :, :]).reshape(-1, B.shape[1])
-
-
-def mttkrp(X: Tensor, A: list[Tensor], n: int, Z: Tensor | None = None) -> Tensor:
-    """``X x_{-n} {a_r}`` for every component at once: column ``r`` is ``X`` contracted with
-    ``a_r(m)`` over every mode ``m != n`` (I_n x R). ``Z = X_(1)^T A(1)`` reshaped (J, K, R) may be
-    passed for modes 2 and 3 (it is shared by both)."""
-    T, J, K = X.shape
-    if n == 0:
-        return X.reshape(T, J * K) @ khatri_rao_pair(A[1], A[2])
-    if Z is None:
-        Z = (X.reshape(T, J * K).T @ A[0]).reshape(J, K, -1)
-    if n == 1:
-        return (Z * A[2][None]).sum(dim=1)
-    return (Z * A[1][:, None]).sum(dim=0)
-
-
 def smoothing_filter(u: Tensor, alpha: float) -> Tensor:
     """``(I + 2 alpha D^T D)^{-1} u`` in O(I log I), ``u`` a vector or the columns of a matrix.
 
@@ -129,7 +103,7 @@ def smooth_column(a: Tensor, u: Tensor, alpha: float, gamma: float, k_max: int,
         if precondition:
             a_new = a - step * (a - h)                              # H^{-1} grad f = a - H^{-1} u
         else:
-            a_new = a - step * (a - u + 2.0 * alpha * difference_gram(a))   # Eq. 32
+            a_new = a - step * (a - u + 2.0 * alpha * ops.difference_gram(a))   # Eq. 32
         a_new = a_new / a_new.norm().clamp_min(_TINY)              # Eq. 33: P_C, unit sphere
         if precondition and gamma == 1.0:
             return a_new, k                                         # exact in one step
@@ -208,16 +182,15 @@ class _HALSCP(Solver):
 
     params = {
         "rank": Param(1, int, low=1, doc="initial rank R (Algorithm 1 starts at 1)"),
-        "rank_max": Param(80, int, low=1,
+        "max_rank": Param(80, int, low=1,
                           doc="R_max, cap on the rank; the hold-out chose 10-65 on the CMU/HDM05 "
                               "recordings (smooth_cp reached 80 in 3 of 54 table runs)"),
         "eps": Param(1e-2, float, low=0.0,
                      doc="epsilon of Eq. 36: add a component when |nu - nu_old| / nu <= eps "
                          "(nu = observed squared residual); the authors use 1e-3, which took 3x "
                          "the sweeps for the same accuracy on CMU 02_01"),
-        "holdout": Param(True, bool,
-                         doc="choose the rank on held-out observed entries (a time-shifted copy "
-                             "of the gap pattern) instead of growing to rank_max"),
+        **holdout_params("shifted_gaps", 0.2, ", the paper's rule: grow to max_rank (with a "
+                                              "hold-out the rank grows while its error improves)"),
         "patience": Param(5, int, low=0,
                           doc="rank increases without held-out improvement before the rank "
                               "search stops (chosen on CMU 02_01/85_02)"),
@@ -229,45 +202,55 @@ class _HALSCP(Solver):
                      doc="stop when ||X - X_old|| / ||X_old|| < tol (the paper's 1e-6)"),
     }
 
+    renamed = {"rank_max": "max_rank"}
+    renamed_attributes = {"cp_": "decomposition_", "rank_chosen_": "chosen_rank_"}
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict) -> dict:
+        """``holdout=True/False`` (old) is ``holdout="shifted_gaps"`` / ``None``."""
+        if isinstance(kwargs.get("holdout"), bool):
+            new = "shifted_gaps" if kwargs["holdout"] else None
+            _deprecated(cls.name, f"holdout={kwargs['holdout']}", f"holdout={new!r}")
+            kwargs["holdout"] = new
+        return super()._upgrade(kwargs)
+
     # -- state -------------------------------------------------------------------------------
     def _initialize(self) -> None:
-        M, Omega = self.M_, self.Omega_
+        M = self.M_
         if M.ndim != 3:
             raise ValueError(f"{self.name}: expected a third-order tensor "
                              f"(frames x markers x xyz), "
                              f"found shape {tuple(M.shape)}")
-        self.V_ = shifted_gap_holdout(Omega, self.generator_) if self.holdout else None
-        self.W_ = Omega & ~self.V_ if self.V_ is not None else Omega     # training entries
-        self.X_ = complete(M, self.W_, self._interp(self.W_))            # linear-interp start
-        self.searching_ = self.V_ is not None
+        # better only by a clear margin: min_gain relative, 1e-9 absolute (unit-variance data)
+        self.holdout_ = holdout_for(self, min_gain=self.min_gain, atol=1e-9)
+        self.X_ = complete(M, self.W_, self.interp_start(self.W_))       # linear-interp start
+        self.searching_ = self.holdout_.active
         self.chosen_ = False                     # True once the hold-out has chosen the rank
-        self.best_: tuple[float, int, dict] | None = None
-        self.bad_ = 0
         self.val_history_: list[tuple[int, float]] = []
         self.nu_ = math.inf
         self.inner_steps_ = 0
         E = self.X_
         T, J, K = M.shape
-        self.cp_ = CPTensor(M.new_zeros(0),
+        self.decomposition_ = CPTensor(M.new_zeros(0),
                             [M.new_zeros(T, 0), M.new_zeros(J, 0), M.new_zeros(K, 0)])
-        for _ in range(min(self.rank, self.rank_max)):
+        for _ in range(min(self.rank, self.max_rank)):
             self._add_component(E)
             E = self.X_ - self.model()
 
-    def _interp(self, W: Tensor) -> Tensor:
-        shape = self.M_.shape
-        filled = ops.interp_linear(self.M_.reshape(shape[0], -1), W.reshape(shape[0], -1))
-        return filled.reshape(shape)
+    @property
+    def W_(self) -> Tensor:
+        """The training entries: observed and not held out (all observed once the rank is chosen)."""
+        return self.holdout_.fit_mask
 
     @property
     def rank_(self) -> int:
-        return int(self.cp_.weights.shape[0])
+        return int(self.decomposition_.weights.shape[0])
 
     def _add_component(self, E: Tensor) -> None:
         """Rank increase (Eq. 36), the new component from the residual's leading vectors."""
         lam, a = leading_rank_one(E)
-        self.cp_.weights = torch.cat([self.cp_.weights, lam.reshape(1)])
-        self.cp_.factors = [torch.cat([A, v[:, None]], dim=1) for A, v in zip(self.cp_.factors, a)]
+        self.decomposition_.weights = torch.cat([self.decomposition_.weights, lam.reshape(1)])
+        self.decomposition_.factors = [torch.cat([A, v[:, None]], dim=1) for A, v in zip(self.decomposition_.factors, a)]
 
     # -- one sweep ---------------------------------------------------------------------------
     def _update_column(self, g: Tensor, a: Tensor, lam_r: Tensor, n: int) -> Tensor:
@@ -285,12 +268,12 @@ class _HALSCP(Solver):
         ``P[:, r] - sum_{k != r} lam_k a_k(n) Q[k, r]`` with ``Q`` the Hadamard product of the other
         factors' Gram matrices (unit diagonal). The columns are held scaled, ``lam_r a_r(n)``.
         """
-        lam = self.cp_.weights
-        A = [F.clone() for F in self.cp_.factors]
+        lam = self.decomposition_.weights
+        A = [F.clone() for F in self.decomposition_.factors]
         Z = None
         for n in range(3):
             others = [m for m in range(3) if m != n]
-            P = mttkrp(X, A, n, Z).T.contiguous()                   # R x I_n
+            P = ops.mttkrp(X, A, n, Z).T.contiguous()                   # R x I_n
             Q = (A[others[0]].T @ A[others[0]]) * (A[others[1]].T @ A[others[1]])
             S = (A[n] * lam).T.contiguous()                         # rows: lam_r a_r(n)
             St = S.T
@@ -304,13 +287,13 @@ class _HALSCP(Solver):
             A[n] = torch.where(lam[:, None] > 0, S / lam.clamp_min(_TINY)[:, None], A[n].T).T
             if n == 0:
                 Z = (X.reshape(X.shape[0], -1).T @ A[0]).reshape(X.shape[1], X.shape[2], -1)
-        self.cp_.weights = lam
-        self.cp_.factors = [F.contiguous() for F in A]
+        self.decomposition_.weights = lam
+        self.decomposition_.factors = [F.contiguous() for F in A]
 
     def model(self) -> Tensor:
         """The full CP tensor ``sum_r lam_r a_r(1) o a_r(2) o a_r(3)``."""
-        A = self.cp_.factors
-        return ((A[0] * self.cp_.weights) @ khatri_rao_pair(A[1], A[2]).T).reshape(self.M_.shape)
+        A = self.decomposition_.factors
+        return ((A[0] * self.decomposition_.weights) @ ops.khatri_rao(A[1], A[2]).T).reshape(self.M_.shape)
 
     def step(self) -> dict[str, float]:
         with torch.no_grad():
@@ -333,38 +316,32 @@ class _HALSCP(Solver):
     def _on_stall(self, Y: Tensor, E: Tensor, info: dict) -> None:
         """The fit at this rank has stalled: score it on the hold-out, then grow (Eq. 36)."""
         if self.searching_:
-            V = self.V_
-            zero = torch.zeros((), dtype=Y.dtype, device=Y.device)
-            err = float(torch.where(V, self.M_ - Y, zero).norm()
-                        / V.sum().sqrt())
+            err = self.holdout_.rmse(Y, self.M_)
             info["holdout_rmse"] = err
             self.val_history_.append((self.rank_, err))
-            # better only by a clear margin: min_gain relative, 1e-9 absolute (unit-variance data)
-            if self.best_ is None or err + 1e-9 < (1.0 - self.min_gain) * self.best_[0]:
-                state = {k: v.clone() for k, v in self.cp_.state_dict().items()}
-                self.best_ = (err, self.rank_, state)
-                self.bad_ = 0
-            else:
-                self.bad_ += 1
-            if self.bad_ > self.patience or self.rank_ >= self.rank_max:
+            self.holdout_.offer(err, self._snapshot, self.n_iter_ + 1)
+            if self.holdout_.n_bad > self.patience or self.rank_ >= self.max_rank:
                 self._finish_search()
                 return
         if self.chosen_:
             info["final_stall"] = 1.0
             return
-        if self.rank_ < self.rank_max and (self.searching_ or not self.holdout or self.V_ is None):
+        if self.rank_ < self.max_rank:
             self._add_component(E)
             self.nu_ = math.inf
 
+    def _snapshot(self) -> dict[str, Tensor]:
+        return {k: v.clone() for k, v in self.decomposition_.state_dict().items()}
+
     def _finish_search(self) -> None:
         """Restore the rank with the best held-out error; refit with every observed entry."""
-        _, R, state = self.best_
-        self.cp_.weights = state["weight_vector"]
-        self.cp_.factors = [state[f"factor_{n}"] for n in range(3)]
+        state = self.holdout_.release()
+        self.decomposition_.weights = state["weight_vector"]
+        self.decomposition_.factors = [state[f"factor_{n}"] for n in range(3)]
         self.searching_ = False
         self.chosen_ = True
-        self.rank_chosen_ = R
-        self.W_ = self.Omega_
+        self.chosen_rank_ = self.rank_
+        self.chosen_iter_ = self.holdout_.best_iter
         self.X_ = complete(self.M_, self.W_, self.model())
         self.nu_ = math.inf
 
@@ -384,11 +361,8 @@ class _HALSCP(Solver):
 class CP(_HALSCP):
     """CP completion by HALS (Mohaoui & Dmytryshyn 2024, Algorithm 1 with Eqs. 22, 25, 26, 36).
 
-    Parameters
-    ----------
-    rank, rank_max, eps, holdout, patience, max_iter, tol, seed, verbose
-        See ``CP.declared_params()``; defaults chosen on CMU 02_01 and 85_02 with simulated gaps
-        and checked on every CMU and HDM05 recording in ``shared/data``.
+    Defaults chosen on CMU 02_01 and 85_02 with simulated gaps and checked on every CMU and
+    HDM05 recording in ``shared/data``.
 
     References
     ----------

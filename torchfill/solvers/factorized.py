@@ -6,12 +6,18 @@ in place under ``torch.no_grad()``). ``forward()`` returns the full tensor.
 """
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import torch
 from torch import nn
 
 from .. import ops
+
+
+def _stored(attr: str, doc: str) -> property:
+    """A tensor held as ``attr`` (a parameter or a buffer, see :meth:`_Factorized._put`)."""
+    return property(lambda self: getattr(self, attr), lambda self, v: self._put(attr, v), doc=doc)
 
 
 class _Factorized(nn.Module):
@@ -50,13 +56,15 @@ class TuckerTensor(_Factorized):
         self.core = core
         self.factors = factors
 
-    @property
-    def core(self) -> torch.Tensor:
-        return self.core_tensor
+    core = _stored("core_tensor", "the core G (R1 x R2 x R3)")
 
-    @core.setter
-    def core(self, value: torch.Tensor) -> None:
-        self._put("core_tensor", value)
+    @classmethod
+    def from_tensor(cls, X: torch.Tensor, rank: Sequence[int], *, learn: bool = False) -> "TuckerTensor":
+        """The truncated HOSVD of a full tensor ``X`` (e.g. the interpolation-filled data)."""
+        G, A = ops.hosvd(X, rank)
+        if learn:
+            G, A = G.detach().clone(), [a.detach().clone() for a in A]
+        return cls(G, A, learn=learn)
 
     @property
     def rank(self) -> tuple[int, ...]:
@@ -74,13 +82,23 @@ class CPTensor(_Factorized):
         self.weights = weights
         self.factors = factors
 
-    @property
-    def weights(self) -> torch.Tensor:
-        return self.weight_vector
+    weights = _stored("weight_vector", "the weights w (R,)")
 
-    @weights.setter
-    def weights(self, value: torch.Tensor) -> None:
-        self._put("weight_vector", value)
+    @classmethod
+    def from_tensor(cls, X: torch.Tensor, rank: int, *, seed: int = 0, n_iter: int = 50,
+                    learn: bool = False) -> "CPTensor":
+        """A CP-ALS fit of a full tensor ``X`` (TensorLy ``parafac``: SVD init, ``n_iter`` sweeps,
+        normalized factors). TensorLy's SVD init pads ``R > I_n`` with random columns but breaks
+        when ``prod(other dims) < R <= I_n``: a random init is used there."""
+        import tensorly as tl
+        from tensorly.decomposition import parafac
+
+        broken = any(X.numel() // I < rank <= I for I in X.shape)
+        with tl.backend_context("pytorch"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # SVD init pads R > I_n with random columns
+            w, A = parafac(X, rank=rank, init="random" if broken else "svd", n_iter_max=n_iter,
+                           tol=1e-8, normalize_factors=True, random_state=seed)
+        return cls(w.detach().clone(), [a.detach().clone() for a in A], learn=learn)
 
     @property
     def rank(self) -> tuple[int, ...]:

@@ -76,6 +76,7 @@ import math
 import torch
 
 from .. import ops
+from ..ops import difference, difference_adjoint, gram_svd  # noqa: F401 (old import path)
 from .base import Param, Solver, register
 
 Tensor = torch.Tensor
@@ -84,36 +85,9 @@ Tensor = torch.Tensor
 # ---------------------------------------------------------------------------------------------
 # Singular values through the small Gram matrix
 # ---------------------------------------------------------------------------------------------
-def _right_side(X: Tensor) -> tuple[Tensor, bool]:
-    """``X`` or ``X^T``, whichever has fewer columns, and whether it was transposed."""
-    return (X.mT, True) if X.shape[0] < X.shape[1] else (X, False)
-
-
-def gram_svd(X: Tensor) -> tuple[Tensor, Tensor]:
-    """Singular values (descending) and right singular vectors of ``X`` (m x n, m >= n) from the
-    eigendecomposition of ``X^T X`` (n x n). Cost O(m n^2) + O(n^3) instead of an m x n SVD."""
-    lam, V = torch.linalg.eigh(X.mT @ X)
-    lam, V = lam.flip(-1), V.flip(-1)
-    return torch.sqrt(torch.clamp(lam, min=0.0)), V
-
-
 def svt(X: Tensor, tau: float, method: str = "gram") -> tuple[Tensor, int]:
-    """Singular value thresholding ``D_tau(X) = U max(S - tau, 0) V^T`` (prox of ``tau ||.||_*``).
-
-    ``method="gram"`` computes it as ``X V diag(max(s - tau, 0) / s) V^T`` from the Gram matrix of
-    the thinner side; ``"full"`` uses :func:`torchfill.ops.svt` (``torch.linalg.svd``).
-    Returns the thresholded matrix and the number of singular values kept.
-    """
-    if method == "full":
-        return ops.svt(X, tau)
-    Z, transposed = _right_side(X)
-    s, V = gram_svd(Z)
-    keep = s > tau
-    r = int(keep.sum())
-    s, V = s[:r], V[:, :r]
-    P = (V * ((s - tau) / s)) @ V.mT
-    out = Z @ P
-    return (out.mT if transposed else out), r
+    """:func:`torchfill.ops.svt`, the Gram-matrix form by default (the solvers' ``svd`` option)."""
+    return ops.svt(X, tau, method)
 
 
 def top_singular_pairs(X: Tensor, r: int, method: str = "gram") -> tuple[Tensor, Tensor]:
@@ -123,8 +97,8 @@ def top_singular_pairs(X: Tensor, r: int, method: str = "gram") -> tuple[Tensor,
     if method == "full":
         U, _, Vh = torch.linalg.svd(X, full_matrices=False)
         return U[:, :r], Vh[:r].mT
-    Z, transposed = _right_side(X)
-    s, V = gram_svd(Z)
+    Z, transposed = ops.thin_side(X)
+    s, V = ops.gram_svd(Z)
     s, V = s[:r], V[:, :r]
     tiny = torch.finfo(X.dtype).eps * max(float(s[0]), 1.0) * max(Z.shape)
     U = (Z @ V) / torch.clamp(s, min=tiny)
@@ -133,34 +107,14 @@ def top_singular_pairs(X: Tensor, r: int, method: str = "gram") -> tuple[Tensor,
 
 
 def energy_rank(X: Tensor, energy: float) -> int:
-    """Smallest ``r`` such that the top ``r`` singular values of ``X`` hold a fraction ``energy``
-    of ``||X||_F^2``; at most ``min(X.shape) - 1`` so that a tail is left to minimize."""
-    Z, _ = _right_side(X)
-    s, _ = gram_svd(Z)
-    share = torch.cumsum(s ** 2, 0) / torch.clamp((s ** 2).sum(), min=torch.finfo(X.dtype).tiny)
-    r = int((share < energy).sum()) + 1
-    return max(0, min(r, min(X.shape) - 1))
+    """:func:`torchfill.ops.energy_rank`, at most ``min(X.shape) - 1`` so that a tail is left to
+    minimize."""
+    return max(0, min(ops.energy_rank(X, energy), min(X.shape) - 1))
 
 
 # ---------------------------------------------------------------------------------------------
-# Temporal differences and the banded X-update system
+# The banded X-update system of the temporal differences (ops.difference, ops.difference_adjoint)
 # ---------------------------------------------------------------------------------------------
-def difference(X: Tensor, order: int) -> Tensor:
-    """``D_order X`` along time (rows): D1 x_t = x_{t+1} - x_t, D2 = D1 D1 (shape (T-order) x N)."""
-    return torch.diff(X, n=order, dim=0) if order < X.shape[0] else X[:0]
-
-
-def difference_adjoint(Y: Tensor, order: int, T: int) -> Tensor:
-    """``D_order^T Y`` for ``Y`` of shape (T-order) x N: the adjoint of :func:`difference`."""
-    if Y.shape[0] == 0:
-        return Y.new_zeros((T,) + tuple(Y.shape[1:]))
-    for _ in range(order):
-        pad = Y.new_zeros((1,) + tuple(Y.shape[1:]))
-        Z = torch.cat([pad, Y, pad], 0)      # (D1^T y)_t = y_{t-1} - y_t, y_{-1} = y_{T-1} = 0
-        Y = Z[:-1] - Z[1:]
-    return Y
-
-
 def difference_gram_bands(T: int, order: int, *, dtype=torch.float64, device=None) -> Tensor:
     """Lower bands of ``D^T D`` for the ``order``-th difference on T samples.
 
@@ -352,7 +306,7 @@ class _MatrixSolver(Solver):
         self.Omat_ = ops.unfold(self.Omega_.to(self.M_.dtype), 0) > 0.5
         self.Gap_ = ~self.Omat_                                  # the entries to fill
         self.Xhat_ = ops.unfold(self.interp_start(), 0)          # X_0: linear interpolation
-        s1 = float(gram_svd(_right_side(self.Xhat_)[0])[0][0]) if self.Xhat_.numel() else 1.0
+        s1 = float(gram_svd(ops.thin_side(self.Xhat_)[0])[0][0]) if self.Xhat_.numel() else 1.0
         self.rho0_ = self.rho / max(s1, 1e-12)
         self.rho_ = self.rho0_
         self._setup()

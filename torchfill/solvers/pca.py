@@ -74,7 +74,8 @@ from typing import Any
 
 import torch
 
-from .base import Param, Solver, register
+from .. import ops
+from .base import Param, Solver, _deprecated, register
 
 Tensor = torch.Tensor
 
@@ -106,10 +107,8 @@ def _eigh_desc(C: Tensor) -> tuple[Tensor, Tensor]:
 
 def complete_runs(item: Tensor) -> list[tuple[int, int]]:
     """``(start, stop)`` of every run of complete frames (all markers finite) of a ``(T, J, 3)``."""
-    ok = torch.isfinite(item).reshape(item.shape[0], -1).all(dim=1).to(torch.int8).cpu()
-    edges = torch.nonzero(torch.diff(torch.cat([torch.zeros(1, dtype=torch.int8), ok,
-                                                torch.zeros(1, dtype=torch.int8)]))).flatten().tolist()
-    return list(zip(edges[::2], edges[1::2]))
+    ok = torch.isfinite(item).reshape(item.shape[0], -1).all(dim=1)
+    return [(a, b) for _, a, b in ops.runs(ok[:, None])]
 
 
 def check_training(training, J: int, owner: str, *, dtype, device) -> list[Tensor]:
@@ -302,9 +301,8 @@ class _PCA(Solver):
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "training": Param(None, (list, tuple), allow_none=True,
-                          doc="list of (T_i, J, 3) arrays with the data's markers in order (NaN "
-                              "allowed: only complete frames are used); None = the complete frames "
-                              "of the recording itself"),
+                          doc="deprecated (one release): pass the training data to "
+                              "fit(X, mask, training=...) or torchfill.fill(..., training=...)"),
         "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
                           doc="rank r = fewest eigenvectors explaining this share of the training "
                               "variance (0.9999: chosen among 0.99-0.99999 on the development "
@@ -409,13 +407,25 @@ class _PCA(Solver):
             out[a:b, cols] = est[a - s0:b - s0]
         return out
 
+    #: fit(X, mask, training=...): list of (T_i, J, 3) arrays with the data's markers in order
+    #: (NaN allowed: only complete frames are used); None = the complete frames of the recording
+    fit_data = ("training",)
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict) -> dict:
+        """``training`` as a hyperparameter (old): still used, with a DeprecationWarning."""
+        if kwargs.get("training") is not None:
+            _deprecated(cls.name, "training= as a hyperparameter", "fit(X, mask, training=...)")
+        return super()._upgrade(kwargs)
+
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
         self.X_ = self.interp_start()
         self.bases_: dict[int, Tensor] = {}
         self.training_items_, self.training_key_ = None, None
-        if self.training is not None:
-            self.training_items_ = check_training(self.training, self.M_.shape[1], self.name,
+        training = self.fit_data_.get("training", self.training)
+        if training is not None:
+            self.training_items_ = check_training(training, self.M_.shape[1], self.name,
                                                   dtype=self.M_.dtype, device=self.M_.device)
             self.training_key_ = (_fingerprint(self.training_items_), str(self.M_.dtype),
                                   str(self.M_.device))
@@ -428,8 +438,10 @@ class _PCA(Solver):
 class PCATrain(_PCA):
     """Gap filling from a training set through a transformed principal eigenspace (Li et al. 2020).
 
-    Parameters
-    ----------
+    Notes
+    -----
+    On the hyperparameters (declared in Parameters above):
+
     training : list of (T_i, J, 3) arrays, optional
         Complete motion with the data's markers in order (see the module notes); None = the complete
         frames of the recording itself.
@@ -483,7 +495,7 @@ class PCATrain(_PCA):
                 out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
                                    centre=self.centre)
         else:
-            runs = [(a, b, j) for j, a, b in _runs(missing)]
+            runs = [(a, b, j) for j, a, b in ops.runs(missing)]
             runs = [r for r in runs if not bool(missing[r[0]:r[1]].all())]
             out = self._temporal_fill_runs(
                 Y, runs, lambda j: slice(3 * j, 3 * j + 3), lambda j: ~missing[:, j],
@@ -503,8 +515,10 @@ class PCABlackout(_PCA):
     leading eigenvectors of ``A A'`` over training pieces of the window's length, by the weighted
     least squares of Eq. 16.
 
-    Parameters
-    ----------
+    Notes
+    -----
+    On the hyperparameters (declared in Parameters above):
+
     training, rank, centre
         As in ``pca_train``.
     variance : float
@@ -546,21 +560,9 @@ class PCABlackout(_PCA):
             n, s, S = self._spatial_stats()
             Y = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
                              centre=self.centre)
-        runs = [(a, b, None) for _, a, b in _runs(full[:, None])]
+        runs = [(a, b, None) for _, a, b in ops.runs(full[:, None])]
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
                                        self.window, self.edge_scale)
         observed = self.Omega_.reshape(T, -1)
         self.X_ = torch.where(observed, self.M_.reshape(T, -1), out).reshape(self.M_.shape)
         return {"delta": 0.0}
-
-
-def _runs(missing: Tensor) -> list[tuple[int, int, int]]:
-    """``(column, start, stop)`` of every run of True in a bool (T, J)."""
-    m = missing.to(torch.int8).cpu()
-    pad = torch.zeros(1, m.shape[1], dtype=torch.int8)
-    d = torch.diff(torch.cat([pad, m, pad]), dim=0)
-    runs = []
-    for j in range(m.shape[1]):
-        edges = torch.nonzero(d[:, j]).flatten().tolist()
-        runs.extend((j, a, b) for a, b in zip(edges[::2], edges[1::2]))
-    return runs

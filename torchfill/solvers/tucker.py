@@ -18,8 +18,8 @@ What differs from the authors' code, and why (all of it uses observed data only)
   observed samples; ``holdout="segments"`` uses single-marker observed runs instead), is hidden
   from the fit while the rank schedule runs, once for each ``eps`` (1e-2, then 1e-4, from the
   same start); the iterate with the smallest error on it is restored, the data are given back,
-  and the fit continues at that rank until it converges (``selection="holdout"``, the default).
-  ``selection="last"`` runs the paper's schedule and returns the last iterate.
+  and the fit continues at that rank until it converges (``holdout="shifted_gaps"``, the default).
+  ``holdout=None`` runs the paper's schedule and returns the last iterate.
 * The nuclear-norm sub-problem (Eq. 24) has a closed form, ``D_{lam/(1+rho_x)}((Z + rho_x X_k) /
   (1+rho_x))``; it is the default. The paper's accelerated proximal gradient (Algorithm 1) is
   available as ``x_step="apg"`` and converges to the same point (tested).
@@ -39,46 +39,13 @@ from collections.abc import Sequence
 import torch
 
 from .. import ops
-from .base import Param, Solver, register
+from .base import Param, Solver, _deprecated, register
 from .factorized import TuckerTensor
-from .holdout import shifted_gap_holdout
+from .holdout import holdout_for, holdout_params, segment_holdout
+
+holdout_segments = segment_holdout      # the old name (one release)
 
 Tensor = torch.Tensor
-
-
-# ---------------------------------------------------------------------------------------------
-# Tensor algebra for the hot loop. ``ops.mode_dot`` goes through TensorLy's backend context, which
-# costs ~10-20 us per call; these direct torch contractions are used inside the iterations
-# (measured in scripts/bench_tucker.py) and agree with ops.multi_mode_dot (tested).
-# ---------------------------------------------------------------------------------------------
-def mode_dot(X: Tensor, M: Tensor, n: int) -> Tensor:
-    """``X x_n M`` for ``M`` of shape ``(I_new, X.shape[n])``."""
-    return torch.movedim(torch.tensordot(X, M, dims=([n], [1])), -1, n)
-
-
-def tucker_to_tensor(G: Tensor, A: Sequence[Tensor]) -> Tensor:
-    """``G x_1 A(1) x_2 A(2) x_3 A(3)`` (the long time mode last, which is cheapest)."""
-    for n in reversed(range(len(A))):
-        G = mode_dot(G, A[n], n)
-    return G
-
-
-def project(X: Tensor, A: Sequence[Tensor], skip: int | None = None) -> Tensor:
-    """``X x_m A(m)^T`` over every mode ``m`` but ``skip``."""
-    for m, Am in enumerate(A):
-        if m != skip:
-            X = mode_dot(X, Am.T, m)
-    return X
-
-
-def hosvd(X: Tensor, rank: Sequence[int]) -> tuple[Tensor, list[Tensor]]:
-    """Truncated higher-order SVD: leading left singular vectors of each unfolding (through
-    TensorLy's ``unfold``), core by projection. Used once, for the start."""
-    A = []
-    for n, Rn in enumerate(rank):
-        U = torch.linalg.svd(ops.unfold(X, n), full_matrices=False).U
-        A.append(U[:, :Rn].contiguous())
-    return project(X, A), A
 
 
 # ---------------------------------------------------------------------------------------------
@@ -89,12 +56,12 @@ def update_factor(Zn: Tensor, G: Tensor, A_n: Tensor, n: int, rho_a: float,
     """Eq. 17: ``A(n) = (Z_n G_(n)^T + rho_a A(n)_k)(G_(n) G_(n)^T + (alpha_n + rho_a) I)^-1``,
     then the Q factor of its thin QR. ``Zn = unfold_n(X x_{m != n} A(m)^T)`` is given (see
     :func:`factor_sweep`)."""
-    Gn = ops_unfold(G, n)
+    Gn = ops.unfold(G, n)
     rhs = Zn @ Gn.T + rho_a * A_n
     lhs = Gn @ Gn.T
     lhs.diagonal().add_(alpha_n + rho_a)
     A_new = torch.linalg.solve(lhs, rhs.T).T        # lhs is symmetric
-    return torch.linalg.qr(A_new, mode="reduced").Q
+    return ops.orthonormalize(A_new)
 
 
 def factor_sweep(X: Tensor, G: Tensor, A: list[Tensor], rho_a: float,
@@ -106,15 +73,15 @@ def factor_sweep(X: Tensor, G: Tensor, A: list[Tensor], rho_a: float,
     ``A(1)`` is updated and shared by ``Z_2``, ``Z_3`` and the core.
     """
     A = list(A)
-    Z1 = ops_unfold(mode_dot(mode_dot(X, A[1].T, 1), A[2].T, 2), 0)
+    Z1 = ops.unfold(ops.mode_dot(ops.mode_dot(X, A[1].T, 1), A[2].T, 2), 0)
     A[0] = update_factor(Z1, G, A[0], 0, rho_a, alpha[0])
-    W = mode_dot(X, A[0].T, 0)                                   # R1 x J x 3
-    Z2 = ops_unfold(mode_dot(W, A[2].T, 2), 1)
+    W = ops.mode_dot(X, A[0].T, 0)                                   # R1 x J x 3
+    Z2 = ops.unfold(ops.mode_dot(W, A[2].T, 2), 1)
     A[1] = update_factor(Z2, G, A[1], 1, rho_a, alpha[1])
-    W = mode_dot(W, A[1].T, 1)                                   # R1 x R2 x 3
-    Z3 = ops_unfold(W, 2)
+    W = ops.mode_dot(W, A[1].T, 1)                                   # R1 x R2 x 3
+    Z3 = ops.unfold(W, 2)
     A[2] = update_factor(Z3, G, A[2], 2, rho_a, alpha[2])
-    return A, mode_dot(W, A[2].T, 2)
+    return A, ops.mode_dot(W, A[2].T, 2)
 
 
 def update_core(XA: Tensor, G_k: Tensor, rho_g: float) -> Tensor:
@@ -128,23 +95,9 @@ def recover_tucker(Y: Tensor, X_k: Tensor, T: Tensor, Omega: Tensor, rho_x: floa
     return torch.where(Omega, T, (Y + rho_x * X_k) / (1.0 + rho_x))
 
 
-def svt_gram(M: Tensor, tau: float) -> Tensor:
-    """``D_tau(M)`` for a tall ``M`` (T x N, T >> N) from the eigen-decomposition of ``M^T M``.
-
-    ``D_tau(M) = M V diag(max(s - tau, 0) / s) V^T`` with ``M^T M = V diag(s^2) V^T``: one N x N
-    eigen-decomposition and two thin products instead of an SVD of the T x N matrix.
-    """
-    s2, V = torch.linalg.eigh(M.T @ M)
-    s = s2.clamp(min=0.0).sqrt()
-    w = torch.where(s > tau, (s - tau) / s.clamp(min=torch.finfo(M.dtype).tiny), torch.zeros_like(s))
-    return M @ ((V * w) @ V.T)
-
-
 def svt(M: Tensor, tau: float, method: str = "gram") -> Tensor:
-    """Singular value thresholding ``D_tau`` (prox of ``tau ||.||_*``): Gram or full thin SVD."""
-    if method == "gram" and M.shape[0] >= M.shape[1]:
-        return svt_gram(M, tau)
-    return ops.svt(M, tau)[0]
+    """``D_tau(M)`` (prox of ``tau ||.||_*``) through :func:`torchfill.ops.svt`; the matrix only."""
+    return ops.svt(M, tau, method)[0]
 
 
 def prox_tnn_closed_form(Z: Tensor, X_k: Tensor, rho_x: float, lam: float,
@@ -180,11 +133,11 @@ def prox_tnn_apg(Z: Tensor, X_k: Tensor, rho_x: float, lam: float, *, step: floa
     return X
 
 
-def increase_rank(A: list[Tensor], rank_max: Sequence[int], delta_rank: Sequence[int],
+def increase_rank(A: list[Tensor], max_rank: Sequence[int], delta_rank: Sequence[int],
                   generator: torch.Generator) -> tuple[list[Tensor], bool]:
     """Eq. 31-32: every ``R_n < R_n^max`` grows by ``Delta R_n`` new random columns, re-orthonormalized."""
     grown, out = False, []
-    for An, Rmax, dR in zip(A, rank_max, delta_rank):
+    for An, Rmax, dR in zip(A, max_rank, delta_rank):
         add = min(dR, Rmax - An.shape[1])
         if add > 0:
             new = torch.randn(An.shape[0], add, dtype=An.dtype, device=An.device, generator=generator)
@@ -192,89 +145,6 @@ def increase_rank(A: list[Tensor], rank_max: Sequence[int], delta_rank: Sequence
             grown = True
         out.append(An)
     return out, grown
-
-
-def ops_unfold(X: Tensor, n: int) -> Tensor:
-    """Mode-``n`` unfolding (Kolda order, as ``ops.unfold``) by a direct torch permute/reshape."""
-    return torch.movedim(X, n, 0).reshape(X.shape[n], -1)
-
-
-def relative_interp(M: Tensor, Omega: Tensor) -> Tensor:
-    """Start of the iterations: gaps filled by linear interpolation **relative to the centroid** of
-    the markers observed in each frame, ``X = c(t) + interp(M - c)``.
-
-    Plain linear interpolation holds a marker still before its first and after its last observed
-    frame; on a recording that travels (a walk) that puts a gap at the start hundreds of mm off, and
-    the block updates, EM-like, take hundreds of iterations to undo it. Holding the marker's offset
-    from the body centroid instead follows the global motion. Only observed values are used.
-    """
-    T = M.shape[0]
-    zero = torch.zeros((), dtype=M.dtype, device=M.device)
-    W = Omega.to(M.dtype)
-    count = W.sum(dim=1, keepdim=True)                                        # (T, 1, 3)
-    c = torch.where(count > 0, (torch.where(Omega, M, zero)).sum(dim=1, keepdim=True) / count.clamp(min=1), zero)
-    c = ops.interp_linear(c.reshape(T, -1), (count > 0).reshape(T, -1)).reshape(c.shape)
-    Rel = torch.where(Omega, M - c, zero)
-    Rel = ops.interp_linear(Rel.reshape(T, -1), Omega.reshape(T, -1)).reshape(M.shape)
-    return torch.where(Omega, M, Rel + c)
-
-
-# ---------------------------------------------------------------------------------------------
-# Validation segments (observed data only)
-# ---------------------------------------------------------------------------------------------
-def holdout_segments(Omega: Tensor, n_segments: int, length: int | None,
-                     generator: torch.Generator) -> Tensor:
-    """Pick ``n_segments`` runs of ``length`` frames on random markers where the marker is observed
-    throughout (and not next to another chosen run); returns the held-out mask ``(T, J, ...)``.
-
-    ``length=None`` uses the median length of the recording's own gaps (from the mask), clipped to
-    ``[5, T // 8]``. Only the positions of observed samples are used, never a value.
-    """
-    obs = Omega.reshape(Omega.shape[0], Omega.shape[1], -1).all(dim=2)       # (T, J) sample observed
-    T, J = obs.shape
-    if length is None:
-        length = _median_gap(~obs) or 50
-    length = int(max(1, min(max(length, 5), max(T // 8, 1))))
-    hold = torch.zeros(T, J, dtype=torch.bool, device=Omega.device)
-    if T < 4 * length or n_segments == 0:
-        return hold.reshape(T, J, *([1] * (Omega.ndim - 2))).expand_as(Omega).clone()
-    # a run may start at t if obs[t:t+length] all True (cumulative counts), with a margin of one
-    c = torch.cat([torch.zeros(1, J, dtype=torch.long, device=Omega.device),
-                   torch.cumsum(obs.long(), dim=0)])
-    ok = (c[length:] - c[:-length]) == length                                 # (T-length+1, J)
-    tried = 0
-    while int(hold.any(dim=0).sum()) < J and tried < 20 * n_segments:
-        tried += 1
-        j = int(torch.randint(J, (1,), generator=generator, device=generator.device))
-        starts = torch.nonzero(ok[:, j]).flatten()
-        if starts.numel() == 0:
-            continue
-        a = int(starts[int(torch.randint(starts.numel(), (1,), generator=generator, device=generator.device))])
-        lo, hi = max(0, a - length), min(T, a + 2 * length)
-        if bool(hold[lo:hi, j].any()):
-            continue
-        hold[a:a + length, j] = True
-        if len(_runs(hold)) >= n_segments:
-            break
-    return hold.reshape(T, J, *([1] * (Omega.ndim - 2))).expand_as(Omega).clone()
-
-
-def _runs(hold: Tensor) -> list[tuple[int, int, int]]:
-    out = []
-    h = torch.nn.functional.pad(hold.to(torch.int8).T, (1, 1))
-    d = torch.diff(h, dim=1)
-    for j in range(hold.shape[1]):
-        a = torch.nonzero(d[j] == 1).flatten().tolist()
-        b = torch.nonzero(d[j] == -1).flatten().tolist()
-        out.extend((j, s, e) for s, e in zip(a, b))
-    return out
-
-
-def _median_gap(missing: Tensor) -> int:
-    lengths = [e - s for _, s, e in _runs(missing)]
-    if not lengths:
-        return 0
-    return int(sorted(lengths)[len(lengths) // 2])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -306,12 +176,12 @@ class Tucker(Solver):
     Defaults are the same for every recording and apply to the internally normalized
     (unit-variance) data. Compared on the mean RMSE over three HDM05 recordings
     (hdm05_mm_01-02_03_120, hdm05_bd_05-01_01_120, HDM_bd_01-02_01_120) x multi_gap settings
-    (gap, max gaps) = (100, 2), (100, 10), (200, 5), seed 0: ``selection`` (holdout 1.04 mm vs
+    (gap, max gaps) = (100, 2), (100, 10), (200, 5), seed 0: ``holdout`` (on: 1.04 mm vs None,
     last iterate 1.05 mm for tucker; 1.95 vs 2.24 mm for tucker_tnn at lam=0.01) and ``lam``
     (0.1 / 0.01 / 0.001: 6.32 / 1.95 / 1.02 mm); the start (centroid-relative interpolation) on
     cmu_02_01, where plain interpolation left an edge gap 446 mm off (now 12 mm). ``rho_a``
     follows the paper's code; ``rho_g``, ``rho_x``, ``eps``, ``rank``, ``delta_rank``,
-    ``patience`` and ``val_segments`` were set by hand (not tuned) for a ~100-iteration search.
+    ``patience`` and ``holdout_segments`` were set by hand (not tuned) for a ~100-iteration search.
     The shifted-gap hold-out (cap 5 % vs 10 %) and the two ``eps`` schedules were then chosen on
     nine cases (cmu_02_01 shared windows 10x100 and 20x50 and multi-gap 20x100x5, cmu_85_02 10x50,
     the first 1500 frames of hdm05_mm with 20x200x5, and four full-length HDM05 multi-gap cases):
@@ -330,7 +200,7 @@ class Tucker(Solver):
                      doc="refinement stops when the relative change of X is below (chosen: time vs accuracy)"),
         "rank": Param((8, 8, 3), (int, tuple, list),
                       doc="initial Tucker rank (R1, R2, R3) of the HOSVD start, capped by the shape"),
-        "rank_max": Param((100, 40, 3), (int, tuple, list),
+        "max_rank": Param((100, 40, 3), (int, tuple, list),
                           doc="R_max per mode (the paper's [100, 40, 3]), capped by the shape"),
         "delta_rank": Param((4, 2, 0), (int, tuple, list),
                             doc="Delta R_n added per rank increase (Eq. 31-32)"),
@@ -343,21 +213,26 @@ class Tucker(Solver):
                          "Several values: the rank schedule runs once per value from the same start and "
                          "the held-out data choose (1e-2 suits long recordings with scattered gaps, 1e-4 "
                          "many markers missing at once in short ones, e.g. cmu_02_01)"),
-        "selection": Param("holdout", str, choices=("holdout", "last"),
-                           doc="'holdout': rank/iterate chosen on held-out observed segments; "
-                               "'last': the paper's schedule, last iterate"),
-        "holdout": Param("shifted_gaps", str, choices=("shifted_gaps", "segments"),
-                         doc="validation data: 'shifted_gaps' = the recording's own gap pattern moved "
-                             "in time onto observed samples (same markers, lengths, simultaneity; "
-                             "falls back to segments); 'segments' = single-marker observed runs"),
-        "holdout_share": Param(0.05, float, low=0.0, high=1.0, low_open=True,
-                               doc="at most this share of observed samples is held out (shifted_gaps)"),
-        "val_segments": Param(12, int, low=1, doc="number of held-out observed segments"),
-        "val_length": Param(None, int, low=1, allow_none=True,
-                            doc="frames per held-out segment (None: median length of the data's gaps)"),
+        **holdout_params("shifted_gaps", 0.05, ", the paper's schedule and its last iterate"),
         "patience": Param(40, int, low=1,
                           doc="search ends this many iterations after the best validation error"),
     }
+
+    renamed = {"rank_max": "max_rank", "val_segments": "holdout_segments",
+               "val_length": "holdout_length"}
+    renamed_attributes = {"tucker_": "decomposition_"}
+
+    @classmethod
+    def _upgrade(cls, kwargs: dict) -> dict:
+        """``selection="last"`` (old) is ``holdout=None``; ``selection="holdout"`` the default."""
+        if "selection" in kwargs:
+            selection = kwargs.pop("selection")
+            _deprecated(cls.name, "selection", "holdout=None" if selection == "last" else "holdout")
+            if selection == "last":
+                kwargs["holdout"] = None
+            elif selection != "holdout":
+                raise ValueError(f"{cls.name}: selection expected 'holdout' or 'last', found {selection!r}")
+        return super()._upgrade(kwargs)
 
     # -- set-up -------------------------------------------------------------------------------
     def _initialize(self) -> None:
@@ -365,42 +240,34 @@ class Tucker(Solver):
         if len(shape) != 3:
             raise ValueError(f"{self.name}: expected a third-order tensor (T, J, 3), found {shape}")
         dims = list(shape)
-        R_max = [min(r, d) for r, d in zip(_triple(self.rank_max, "rank_max", self.name), dims)]
+        R_max = [min(r, d) for r, d in zip(_triple(self.max_rank, "max_rank", self.name), dims)]
         # a Tucker rank needs R_n <= prod of the others
         R_max = [min(R_max[n], math.prod(R_max[m] for m in range(3) if m != n)) for n in range(3)]
         R0 = [min(r, m) for r, m in zip(_triple(self.rank, "rank", self.name), R_max)]
-        self.rank_max_ = R_max
+        self.max_rank_ = R_max
         self.delta_rank_ = _triple(self.delta_rank, "delta_rank", self.name)
         self.alpha_ = _triple(self.alpha, "alpha", self.name, float)
         self.eps_candidates_ = _eps_list(self.eps, self.name)
         self.eps_ = self.eps_candidates_[0]
         self.R0_ = R0
-        # validation segments: hidden from the fit during the search phase
-        if self.selection == "holdout":
-            V = None
-            if self.holdout == "shifted_gaps":
-                V = shifted_gap_holdout(self.Omega_, self.generator_, max_share=self.holdout_share)
-            self.holdout_ = V if V is not None else holdout_segments(
-                self.Omega_, self.val_segments, self.val_length, self.generator_)
-        else:
-            self.holdout_ = torch.zeros_like(self.Omega_)
-        self.searching_ = bool(self.holdout_.any())
-        self.n_holdout_ = math.sqrt(max(int(self.holdout_.sum()), 1))
-        self.Omega_fit_ = self.Omega_ & ~self.holdout_
+        # held-out observed samples: hidden from the fit during the search phase
+        self.holdout_ = holdout_for(self)
+        self.searching_ = self.holdout_.active
+        self.search_end_iter_ = 0
         self._start(R0)
-        self.best_ = None
-        self.best_val_ = math.inf
-        self.best_iter_ = 0
         self.schedule_best_ = (math.inf, 0)
-        self.rank_max_full_ = list(self.rank_max_)
-        self.phase_iter_ = 0
+        self.max_rank_full_ = list(self.max_rank_)
+
+    @property
+    def Omega_fit_(self) -> Tensor:
+        """The observed entries the fit sees (all of them once the search has ended)."""
+        return self.holdout_.fit_mask
 
     def _start(self, R: Sequence[int]) -> None:
         """Centroid-relative linear interpolation of the fitted gaps, then truncated HOSVD."""
-        self.X_ = relative_interp(self.M_, self.Omega_fit_)
-        G, A = hosvd(self.X_, R)
-        self.tucker_ = TuckerTensor(G, A)
-        self.residual_ = self._observed_residual(tucker_to_tensor(G, A))
+        self.X_ = self.interp_start(self.Omega_fit_, relative=True)
+        self.decomposition_ = TuckerTensor.from_tensor(self.X_, R)
+        self.residual_ = self._observed_residual(self.decomposition_())
 
     def _observed_residual(self, Y: Tensor) -> float:
         R = torch.where(self.Omega_fit_, Y - self.M_, torch.zeros((), dtype=Y.dtype, device=Y.device))
@@ -412,82 +279,87 @@ class Tucker(Solver):
 
     def step(self) -> dict[str, float]:
         with torch.no_grad():
-            X_k, G_k = self.X_, self.tucker_.core
-            A = list(self.tucker_.factors)
+            X_k, G_k = self.X_, self.decomposition_.core
+            A = list(self.decomposition_.factors)
             A, XA = factor_sweep(X_k, G_k, A, self.rho_a, self.alpha_)        # Eq. 17
             G = update_core(XA, G_k, self.rho_g)                              # Eq. 18
-            Y = tucker_to_tensor(G, A)
+            Y = ops.tucker_to_tensor(G, A)
             X = self._recover(Y, X_k)                                         # Eq. 19 / 24-30
             r = self._observed_residual(Y)
             change = abs(1.0 - r / self.residual_) if self.residual_ > 0 else 0.0
             grown = False
             if change <= self.eps_:                                           # Eq. 31
-                A, grown = increase_rank(A, self.rank_max_, self.delta_rank_, self.generator_)
+                A, grown = increase_rank(A, self.max_rank_, self.delta_rank_, self.generator_)
                 if grown:
-                    G = project(X, A)                                         # Eq. 32, core recomputed
+                    G = ops.multi_mode_dot(X, A, transpose=True)     # Eq. 32, core recomputed
             delta = float(torch.linalg.norm(X - X_k) / torch.linalg.norm(X_k).clamp(min=1e-300))
             self.X_, self.residual_ = X, r
-            self.tucker_.core, self.tucker_.factors = G, A
+            self.decomposition_.core, self.decomposition_.factors = G, A
             info = {"delta": delta, "residual": r, "rank_change": change,
                     "R1": A[0].shape[1], "R2": A[1].shape[1], "R3": A[2].shape[1]}
             if self.searching_:
-                E = torch.where(self.holdout_, X - self.M_, torch.zeros((), dtype=X.dtype, device=X.device))
-                info["val_rmse"] = float(torch.linalg.norm(E)) / self.n_holdout_
+                info["holdout_rmse"] = self.holdout_.rmse(X, self.M_)
+                self._select(info, self.n_iter_ + 1)
             return info
 
     # -- stopping / selection ---------------------------------------------------------------
-    def should_stop(self, info: dict[str, float]) -> bool:
-        self.phase_iter_ += 1
-        if not self.searching_:
-            return info["delta"] < self.tol
-        val = info["val_rmse"]
-        if val < self.best_val_:                      # best over all schedules: restored at the end
-            self.best_val_, self.best_iter_ = val, self.n_iter_
-            self.best_ = (self.X_.clone(), self.tucker_.core.clone(),
-                          [a.clone() for a in self.tucker_.factors], self.residual_)
+    def _select(self, info: dict[str, float], it: int) -> None:
+        """Search phase, after iteration ``it``: keep the best held-out iterate (over all
+        schedules), and move to the next ``eps`` schedule or end the search when this one has
+        stalled (``patience``) or converged at full rank."""
+        val = info["holdout_rmse"]
+        self.holdout_.offer(val, self._snapshot, it)
         if val < self.schedule_best_[0]:              # best of this schedule: drives the patience
-            self.schedule_best_ = (val, self.n_iter_)
-        ranks_done = all(a.shape[1] >= m for a, m in zip(self.tucker_.factors, self.rank_max_))
-        stalled = self.n_iter_ - self.schedule_best_[1] >= self.patience
+            self.schedule_best_ = (val, it)
+        ranks_done = all(a.shape[1] >= m for a, m in zip(self.decomposition_.factors, self.max_rank_))
+        stalled = it - self.schedule_best_[1] >= self.patience
         converged = ranks_done and info["delta"] < self.tol
-        if self.n_iter_ >= self.max_iter - 1:
-            self._end_search()
+        if it >= self.max_iter - 1:
+            self._end_search(it)
         elif stalled or converged:
             if len(self.eps_candidates_) > 1:
                 self._next_schedule()
             else:
-                self._end_search()
-        return False
+                self._end_search(it)
+
+    def _snapshot(self) -> tuple:
+        return (self.X_.clone(), self.decomposition_.core.clone(),
+                [a.clone() for a in self.decomposition_.factors], self.residual_)
+
+    def should_stop(self, info: dict[str, float]) -> bool:
+        """After the search (not in the iteration that ended it): relative change of X below ``tol``."""
+        if self.searching_ or self.n_iter_ <= self.search_end_iter_:
+            return False
+        return info["delta"] < self.tol
 
     def _next_schedule(self) -> None:
         """Run the rank schedule again from the same start with the next ``eps``; the best
         validation error over all schedules is what ``_end_search`` restores."""
         self.eps_candidates_ = self.eps_candidates_[1:]
         self.eps_ = self.eps_candidates_[0]
-        self.rank_max_ = list(self.rank_max_full_)
-        self.schedule_best_ = (math.inf, self.n_iter_)
+        self.max_rank_ = list(self.max_rank_full_)
+        self.schedule_best_ = (math.inf, self.n_iter_ + 1)
         self._start(self.R0_)
 
-    def _end_search(self) -> None:
-        """Restore the iterate with the best validation error, give the held-out data back,
+    def _end_search(self, it: int) -> None:
+        """Restore the iterate with the best held-out error, give the held-out data back,
         and continue at that rank (no further rank increases)."""
-        X, G, A, _ = self.best_
+        X, G, A, _ = self.holdout_.release()
         self.searching_ = False
-        self.Omega_fit_ = self.Omega_
+        self.search_end_iter_ = it
         self.X_ = torch.where(self.Omega_, self.M_, X)
-        self.tucker_.core, self.tucker_.factors = G, A
-        self.rank_max_ = [a.shape[1] for a in A]
-        self.residual_ = self._observed_residual(tucker_to_tensor(G, A))
-        self.chosen_iter_ = self.best_iter_
+        self.decomposition_.core, self.decomposition_.factors = G, A
+        self.max_rank_ = [a.shape[1] for a in A]
+        self.residual_ = self._observed_residual(ops.tucker_to_tensor(G, A))
+        self.chosen_iter_ = self.holdout_.best_iter
         self.chosen_rank_ = tuple(a.shape[1] for a in A)
-        self.phase_iter_ = 0
 
     def _estimate(self) -> Tensor:
         return self.X_
 
     @property
     def rank_(self) -> tuple[int, ...]:
-        return tuple(a.shape[1] for a in self.tucker_.factors)
+        return tuple(a.shape[1] for a in self.decomposition_.factors)
 
 
 @register
