@@ -92,7 +92,7 @@ def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, 
 def test_limit_and_unregistered_methods(smoke_data, tmp_path, capsys):
     path = write_config(tmp_path, "methods: {linear: {}, not_a_method_yet: {max_iter: 3}}\n")
     out = runner.run_experiment(path, output=tmp_path / "o", limit=1)
-    assert "'not_a_method_yet' (not_a_method_yet) is not registered; skipped" in capsys.readouterr().out
+    assert "method 'not_a_method_yet' is not registered; skipped" in capsys.readouterr().out
     assert [r["method"] for r in rows(out)] == ["linear"]
     assert "not_a_method_yet" in (out / "table.md").read_text()
 
@@ -123,12 +123,20 @@ def test_main_reports_errors_with_status_2(tmp_path, capsys):
     assert "absent.yaml: no such config file" in capsys.readouterr().err
 
 
-def test_base_config_deep_merge(tmp_path):
+def test_base_config_deep_merge(tmp_path, monkeypatch):
+    monkeypatch.delenv("TORCHFILL_DATA", raising=False)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "a.c3d").write_bytes(b"")      # load_config checks files, reads none
     (tmp_path / "base.yaml").write_text(
         "recordings: [a.c3d]\nprotocol: multi_gap\ngrid: {n_markers: [5], gap_length: [40]}\n"
-        "methods: {linear: {}}\nseeds: [0, 1]\n")
-    (tmp_path / "child.yaml").write_text("base: base.yaml\ngrid: {gap_length: [10, 20]}\n")
-    cfg = load_config(tmp_path / "child.yaml")
+        "methods: {linear: {}}\nseeds: [0, 1]\ndata_dir: data\n")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "child.yaml").write_text("base: ../base.yaml\ngrid: {gap_length: [10, 20]}\n")
+    monkeypatch.chdir(tmp_path / "sub")
+    cfg = load_config("child.yaml")
+    # folders come from the config files' locations: data_dir from the base file that sets it,
+    # results beside the config that was run; never from the package's location
+    assert cfg.data_dir == tmp_path / "data" and cfg.results_dir == tmp_path / "sub" / "results"
     assert cfg.name == "child" and cfg.grid == {"n_markers": [5], "gap_length": [10, 20]}
     assert len(cfg.cases()) == 1 * 2 * 2 * 1
     assert config_mod.deep_merge({"a": {"b": 1, "c": 2}}, {"a": {"c": 3}}) == {"a": {"b": 1, "c": 3}}
