@@ -39,7 +39,8 @@ def table_markdown(rows: list[dict], by: list[str], column: str, metric: str,
     line in bold (every metric here is an error, lower is better). With ``mean_row``, a last line
     holds each column's mean over the lines where every column has a value."""
     cells = summarize(rows, by, column, metric)
-    refs = _reference_cells(references, by, metric)
+    refs = {label: ref for label, ref in _reference_cells(references, by, metric).items()
+            if any(_match(k, ref) is not None for k in cells)}
     present = [c for c in columns if any(c in v for v in cells.values())]
     lines = ["| " + " | ".join(by + list(refs) + present) + " |",
              "|" + "---|" * (len(by) + len(refs) + len(present))]
