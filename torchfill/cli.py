@@ -140,7 +140,12 @@ def _cmd_methods(args) -> int:
 
 
 def _cmd_experiment(args) -> int:
-    from torchfill.lightning.runner import run_experiment
+    try:
+        from torchfill.lightning.runner import run_experiment
+    except ImportError as err:            # the optional [experiments] extra is not installed
+        if "torchfill[experiments]" not in str(err):
+            raise
+        raise ValueError(str(err)) from None
 
     out = run_experiment(args.config, resume=args.resume, workers=args.workers,
                          limit=args.limit, output=args.output)
