@@ -252,7 +252,7 @@ def test_segments_cut_the_recording_and_self_training_is_the_rest(smoke_data, tm
     truth = load_recording(full).truth
     seen = []
     for case in cfg.cases()[1::2]:
-        rec, mask, rest = runner.case_data(cfg, case)
+        rec, mask, rest = runner.case_data(cfg, case.recording, case.point, case.seed)
         s0 = [s for s in range(len(truth) - 49) if np.array_equal(truth[s:s + 50], rec.truth)][0]
         seen.append(s0)
         assert mask.shape == (50, truth.shape[1]) and mask.any()

@@ -244,7 +244,8 @@ def _table(value, keys: list[str], metric_names: list[str], bad) -> dict[str, An
     table = dict(value or {})
     unknown = set(table) - {"rows", "columns", "metric", "digits"}
     if unknown:
-        raise bad(f"table: unknown key(s) {sorted(unknown)}; expected rows, columns, metric, digits")
+        raise bad(f"table: unknown key(s) {sorted(unknown)}; "
+                  "expected rows, columns, metric, digits")
     rows = table.get("rows", ["recording", *keys])
     table["rows"] = [rows] if isinstance(rows, str) else list(rows)
     table.setdefault("columns", "method")
@@ -252,7 +253,8 @@ def _table(value, keys: list[str], metric_names: list[str], bad) -> dict[str, An
     table.setdefault("digits", 2)
     for key in table["rows"] + [table["columns"]]:
         if key not in ("recording", "seed", "method", *keys):
-            raise bad(f"table key {key!r} is neither 'recording', 'seed', 'method' nor one of {keys}")
+            raise bad(f"table key {key!r} is neither 'recording', 'seed', 'method' "
+                      f"nor one of {keys}")
     if table["metric"] not in metric_names:
         raise bad(f"table metric {table['metric']!r} is not in metrics {metric_names}")
     return table

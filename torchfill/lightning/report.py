@@ -1,6 +1,7 @@
-"""Results of an experiment: ``table.md`` in the papers' layout (mean ± std over seeds, best value
-per row in bold, a mean row, published reference columns), the solvers' diagnostics (iterations,
-chosen rank), a worst/median-seed stability check, and the PNG plots, from the rows of ``cases.csv``."""
+"""Results of an experiment, from the rows of ``cases.csv``: ``table.md`` in the papers' layout
+(mean ± std over seeds, best value per row in bold, a mean row, published reference columns), the
+solvers' diagnostics (iterations, chosen rank), a worst/median-seed stability check, and the PNG
+plots."""
 from __future__ import annotations
 
 import datetime as _dt
@@ -27,7 +28,9 @@ def _reference_cells(references: dict, by: list[str], metric: str) -> dict[str, 
 
 def _match(key: tuple, cells: dict) -> float | None:
     """A reference value for a table row; recordings match with or without their extension."""
-    strip = lambda k: tuple(Path(v).stem if v.endswith((".c3d", ".trc")) else v for v in k)  # noqa: E731
+    def strip(k: tuple) -> tuple:
+        return tuple(Path(v).stem if v.endswith((".c3d", ".trc")) else v for v in k)
+
     return next((v for k, v in cells.items() if strip(k) == strip(key)), None)
 
 

@@ -53,7 +53,7 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     row = R.key_row(case)
     start = time.perf_counter()
     try:
-        rec, mask, rest = case_data(cfg, case)
+        rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
         solver = get_solver(case.method.solver, **_training_params(cfg, case, rec.labels, rest))
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
@@ -78,14 +78,14 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     return row
 
 
-def case_data(cfg: Config, case: Case):
+def case_data(cfg: Config, recording: str, point, seed: int):
     """``(recording, mask, rest)`` of a case: the recording (or its test segment), the gap mask
     and, with ``segments``, the rest of the recording (the self-training set; else None). Segment
     ``i``'s masks use seed ``1000 i + seed``."""
     from .data import cut_segment, load_recording, make_mask
 
-    rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
-    point, rest, seed = dict(case.point), None, case.seed
+    rec = load_recording(cfg.recording_path(recording), cfg.frames)
+    point, rest = dict(point), None
     if "segment" in point:
         index = point.pop("segment")
         rec, rest = cut_segment(rec, *cfg.segments, index)
@@ -339,8 +339,7 @@ def _check_recordings(cfg: Config) -> list[str]:
         notes.append(rec.note())
         for point in cfg.points():
             try:
-                case_data(cfg, Case(name, point, cfg.seeds[0], cfg.methods[0] if cfg.methods
-                                    else None))
+                case_data(cfg, name, point, cfg.seeds[0])
             except (TypeError, ValueError) as err:
                 raise ValueError(f"{cfg.path.name}: {cfg.protocol} {dict(point)} on {name}: "
                                  f"{' '.join(str(err).split())}") from None
