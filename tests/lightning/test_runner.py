@@ -88,6 +88,14 @@ def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, 
     runner.run_experiment(SMOKE, output=out, resume=True)
     assert calls == [] and len(rows(out)) == 2
 
+    (out / "table.md").unlink()
+    with open(out / "cases.csv") as handle:
+        kept = handle.readlines()[:2]                      # header + linear: svt "not run"
+    (out / "cases.csv").write_text("".join(kept))
+    runner.run_experiment(SMOKE, output=out, report_only=True)
+    assert calls == [] and [r["method"] for r in rows(out)] == ["linear"]
+    assert "| linear | 1 |" in (out / "table.md").read_text()
+
 
 def test_limit_and_unregistered_methods(smoke_data, tmp_path, capsys):
     path = write_config(tmp_path, "methods: {linear: {}, not_a_method_yet: {max_iter: 3}}\n")
@@ -235,6 +243,8 @@ def test_report_rows_references_mean_stability_and_diagnostics():
     assert lines[2] == f"| r.c3d | 50 | 0.50 | **2.00 ± {math.sqrt(3):.2f}** | 2.50 ± 0.00 |"
     assert lines[3] == "| r.c3d | 100 | – | 3.00 ± 0.00 | **1.00 ± 0.00** |"
     assert lines[4] == "| mean of 2 rows |  |  | 2.50 | **1.75** |"
+    text = report.table_markdown(data[:-1], ["recording", "gap_length"], "method", "rmse", ["a", "b"])
+    assert text.splitlines()[3] == "| r.c3d | 100 | 3.00 ± 0.00 | **1.00 ± 0.00** (n=2) |"
     check = report.stability_markdown(data, ["recording", "gap_length"], "rmse", ["a", "b"])
     assert "| a | 4.00 | r.c3d 50 | 3 |" in check and "| b | 1.00 |" in check
     diag = report.diagnostics_markdown(data, ["recording", "gap_length"], ["a", "b"])

@@ -38,9 +38,10 @@ def table_markdown(rows: list[dict], by: list[str], column: str, metric: str,
                    columns: list[str], digits: int = 2, references: dict | None = None,
                    mean_row: bool = True) -> str:
     """One markdown table: a line per ``by`` key, a column per published reference then per
-    ``columns`` value, the cells ``mean ± std`` of ``metric`` over seeds; the lowest mean of each
-    line in bold (every metric here is an error, lower is better). With ``mean_row``, a last line
-    holds each column's mean over the lines where every column has a value."""
+    ``columns`` value, the cells ``mean ± std`` of ``metric`` over seeds (``(n=k)`` where a cell
+    has fewer values than the fullest one: an unfinished grid); the lowest mean of each line in
+    bold (every metric here is an error, lower is better). With ``mean_row``, a last line holds
+    each column's mean over the lines where every column has a value."""
     cells = summarize(rows, by, column, metric)
     refs = {label: ref for label, ref in _reference_cells(references, by, metric).items()
             if any(_match(k, ref) is not None for k in cells)}
@@ -48,6 +49,7 @@ def table_markdown(rows: list[dict], by: list[str], column: str, metric: str,
     lines = ["| " + " | ".join(by + list(refs) + present) + " |",
              "|" + "---|" * (len(by) + len(refs) + len(present))]
     keys = sorted(cells, key=lambda k: tuple(sort_key(v) for v in k))
+    full_n = max((len(v) for cols in cells.values() for v in cols.values()), default=0)
     for key in keys:
         stats = {c: mean_std(v) for c, v in cells[key].items()}
         best = min((m for m, _ in stats.values()), default=None)
@@ -61,7 +63,9 @@ def table_markdown(rows: list[dict], by: list[str], column: str, metric: str,
                 continue
             m, s = stats[c]
             text = f"{m:.{digits}f} ± {s:.{digits}f}"
-            out.append(f"**{text}**" if m == best else text)
+            text = f"**{text}**" if m == best else text
+            n = len(cells[key][c])
+            out.append(text + (f" (n={n})" if n < full_n else ""))   # an unfinished cell
         lines.append("| " + " | ".join(list(key) + out) + " |")
     full = [k for k in keys if all(c in cells[k] for c in present)]
     if mean_row and len(full) > 1:

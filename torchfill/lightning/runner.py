@@ -302,7 +302,7 @@ def report(p: Plan, *, workers: int = 1) -> Path:
 
 
 def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
-                   output=None) -> Path:
+                   output=None, report_only: bool = False) -> Path:
     """Run every case of ``config_path``: :func:`plan`, :func:`execute`, :func:`report`.
 
     Parameters
@@ -313,15 +313,22 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     limit : run at most this many cases (the first ones, in config order).
     output : folder for the results (default ``<results_dir>/<name>``, ``results_dir`` defaulting
         to ``results/`` beside the config file); per-iteration logs go to ``<output>/runs``.
+    report_only : run nothing; rewrite ``table.md`` and the plots from the ``cases.csv`` there.
 
     Returns
     -------
     Path : the output folder.
     """
-    p = plan(config_path, resume=resume, limit=limit, output=output)
+    p = plan(config_path, resume=resume or report_only, limit=limit, output=output)
     for note in p.notes:
         print(note, flush=True)
-    execute(p, workers=workers)
+    if report_only:
+        if not p.csv_path.exists():
+            raise ValueError(f"{p.cfg.path.name}: {p.csv_path} not found; nothing to report")
+        print(f"{p.cfg.name}: report of {len(p.done)} finished case(s); {len(p.todo)} not run",
+              flush=True)
+    else:
+        execute(p, workers=workers)
     return report(p, workers=workers)
 
 
@@ -403,10 +410,12 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
     parser.add_argument("--limit", type=int, default=None, help="run at most K cases")
     parser.add_argument("--output", default=None, help="results folder")
+    parser.add_argument("--report-only", action="store_true",
+                        help="only rewrite table.md and the plots from cases.csv")
     args = parser.parse_args(argv)
     try:
         out = run_experiment(args.config, resume=args.resume, workers=args.workers,
-                             limit=args.limit, output=args.output)
+                             limit=args.limit, output=args.output, report_only=args.report_only)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
