@@ -54,6 +54,7 @@ def test_smoke_experiment_end_to_end(smoke_data, tmp_path):
     assert (out / "convergence.png").stat().st_size > 1000        # svt iterates
     logs = list((out / "runs" / "logs").glob("*svt*/metrics.csv"))
     assert len(logs) == 1 and len(logs[0].read_text().splitlines()) == int(got[1]["n_iter"]) + 1
+    assert "time_s" in logs[0].read_text().splitlines()[0].split(",")   # solver seconds per step
 
 
 def test_interrupt_then_resume_runs_only_unfinished_cases(smoke_data, tmp_path, monkeypatch):
