@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Create .venv at the repository root if missing and install torchfill into it (editable, with the
-# dev and plot extras). torch is pinned to 2.13.0 first: on this project's machines that is a CPU
+# dev, plot and experiments extras). torch is pinned to 2.13.0 first: on this project's machines that is a CPU
 # build on local disk, and an unpinned torch would pull a multi-GB CUDA build instead.
 # Re-running is cheap: the install is skipped while pyproject.toml is unchanged.
 set -euo pipefail
@@ -19,7 +19,7 @@ want="$(sha256sum "$root/pyproject.toml" | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ] || ! "$venv/bin/python" -c "import torchfill" 2>/dev/null; then
     echo "setup: installing torch==2.13.0 and torchfill into .venv (first run takes a minute)" >&2
     pip=("$venv/bin/python" -m pip install --disable-pip-version-check --no-input -q)
-    if ! { "${pip[@]}" "torch==2.13.0" && "${pip[@]}" -e "$root[dev,plot]"; } >"$log" 2>&1; then
+    if ! { "${pip[@]}" "torch==2.13.0" && "${pip[@]}" -e "$root[dev,plot,experiments]"; } >"$log" 2>&1; then
         grep -v "^WARNING: Location" "$log" >&2 || true
         echo "setup: pip install failed (see above)" >&2
         exit 1

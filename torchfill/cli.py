@@ -191,10 +191,15 @@ def _cmd_methods(args) -> int:
 
 
 def _cmd_experiment(args) -> int:
-    from torchfill.lightning.runner import run_experiment
+    try:
+        from torchfill.lightning.runner import run_experiment
+    except ImportError as err:            # the optional [experiments] extra is not installed
+        if "torchfill[experiments]" not in str(err):
+            raise
+        raise ValueError(str(err)) from None
 
     out = run_experiment(args.config, resume=args.resume, workers=args.workers,
-                         limit=args.limit, output=args.output)
+                         limit=args.limit, output=args.output, report_only=args.report_only)
     print(f"results in {out}")
     return 0
 
@@ -339,7 +344,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="skip cases already finished")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
     p.add_argument("--limit", type=int, help="run at most this many cases")
-    p.add_argument("--output", help="output folder (default: experiments/results/<name>)")
+    p.add_argument("--output", help="output folder (default: results/<name> beside the config)")
+    p.add_argument("--report-only", action="store_true",
+                   help="only rewrite table.md and the plots from the cases.csv there")
     p.set_defaults(run=_cmd_experiment)
     return parser
 

@@ -13,15 +13,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-#: The repository root (configs' ``data_dir`` and default output folders are relative to it).
-REPO_ROOT = Path(__file__).resolve().parents[2]
-
-KNOWN_KEYS = {"name", "base", "description", "data_dir", "recordings", "training", "frames",
-              "protocol", "grid", "seeds", "methods", "metrics", "table", "plots", "showcase",
-              "device", "dtype", "log"}
+KNOWN_KEYS = {"name", "base", "description", "data_dir", "results_dir", "recordings", "training",
+              "frames", "segments", "protocol", "grid", "seeds", "methods", "metrics", "table",
+              "references", "plots", "showcase", "device", "dtype", "log"}
 DEFAULT_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
+#: Keys whose relative paths are resolved against the folder of the config file that sets them.
+PATH_KEYS = ("data_dir", "results_dir")
+#: ``training: self`` = the rest of the test recording (the segment cut out; needs ``segments``).
+SELF = "self"
 
 
 @dataclass(frozen=True)
@@ -56,11 +55,12 @@ class Case:
 
 @dataclass
 class Config:
-    """A validated experiment config."""
+    """A validated experiment config (see ``experiments/README.md`` for the schema)."""
 
     path: Path
     name: str
     data_dir: Path
+    results_dir: Path
     recordings: list[str]
     protocol: str
     grid: dict[str, list]
@@ -70,6 +70,9 @@ class Config:
     table: dict[str, Any]
     training: list[str] = field(default_factory=list)
     frames: tuple[int, int] | None = None
+    segments: tuple[int, int] | None = None          # (length, count) test segments per recording
+    references: dict[str, list[dict]] = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)  # methods listed but not registered
     plots: dict[str, Any] = field(default_factory=dict)
     showcase: dict[str, Any] = field(default_factory=dict)
     device: str = "cpu"
@@ -77,13 +80,19 @@ class Config:
     log: bool = True
     raw: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def keys(self) -> list[str]:
+        """The columns between ``recording`` and ``seed`` in ``cases.csv``: segment, grid keys."""
+        return (["segment"] if self.segments else []) + list(self.grid)
+
     def points(self) -> list[tuple[tuple[str, Any], ...]]:
-        """The cartesian product of the grid, in config order."""
-        keys = list(self.grid)
-        return [tuple(zip(keys, values)) for values in itertools.product(*self.grid.values())]
+        """The cartesian product of the segment indices and the grid, in config order."""
+        axes = ({"segment": list(range(self.segments[1]))} if self.segments else {}) | self.grid
+        keys = list(axes)
+        return [tuple(zip(keys, values)) for values in itertools.product(*axes.values())]
 
     def cases(self, methods: list[Method] | None = None) -> list[Case]:
-        """Every case, ordered recording > grid point > seed > method."""
+        """Every case, ordered recording > segment > grid point > seed > method."""
         methods = self.methods if methods is None else methods
         return [Case(rec, point, seed, m) for rec in self.recordings for point in self.points()
                 for seed in self.seeds for m in methods]
@@ -107,17 +116,24 @@ def deep_merge(base: dict, over: dict) -> dict:
 
 
 def _load_raw(path: Path, seen: tuple[Path, ...] = ()) -> dict:
+    """One config file merged onto its ``base:`` chain; relative ``data_dir``/``results_dir`` are
+    made absolute against the folder of the file that sets them."""
+    import yaml
+
     if path in seen:
         raise ValueError(f"{seen[0]}: circular base: chain {' -> '.join(map(str, seen + (path,)))}")
     if not path.is_file():
-        where = f"{seen[-1]}: base " if seen else ""
+        where = f"{seen[-1].name}: base " if seen else ""
         raise ValueError(f"{where}{path}: no such config file")
     try:
         raw = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
-        raise ValueError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from None
+        raise ValueError(f"{path.name}: not valid YAML ({' '.join(str(err).split())})") from None
     if not isinstance(raw, dict):
-        raise ValueError(f"{path}: expected a mapping at the top level, found {type(raw).__name__}")
+        raise ValueError(f"{path.name}: expected a mapping at the top level, found {type(raw).__name__}")
+    for key in PATH_KEYS:
+        if isinstance(raw.get(key), str):
+            raw[key] = str((path.parent / raw[key]).resolve())
     if "base" in raw:
         base = _load_raw((path.parent / str(raw["base"])).resolve(), seen + (path,))
         raw = deep_merge(base, {k: v for k, v in raw.items() if k != "base"})
@@ -125,8 +141,16 @@ def _load_raw(path: Path, seen: tuple[Path, ...] = ()) -> dict:
 
 
 def load_config(path) -> Config:
-    """Read, merge and validate a config; every problem is a one-line ``ValueError`` naming it."""
-    from .. import gaps, metrics
+    """Read, merge and validate a config without reading any recording.
+
+    Every problem is a one-line ``ValueError`` starting with the config file's name: unknown keys,
+    protocols, metrics or table rows, a bad grid, seeds, frames or segments, a recording or training
+    recording that is not in ``data_dir``, a bad hyperparameter. Methods that are not registered are
+    listed in ``skipped``. Relative folders are resolved against the config file's folder
+    (``data_dir``, default ``../../shared/data``; env ``TORCHFILL_DATA`` overrides it); results go
+    to ``<results_dir>/<name>`` (default ``results/`` beside the config file).
+    """
+    from .. import gaps
 
     path = Path(path).resolve()
     raw = _load_raw(path)
@@ -140,54 +164,129 @@ def load_config(path) -> Config:
     for key in ("recordings", "protocol", "methods"):
         if key not in raw:
             raise bad(f"missing required key {key!r}")
-    name = str(raw.get("name") or path.stem)
     env = os.environ.get("TORCHFILL_DATA")
-    data_dir = Path(env) if env else REPO_ROOT / str(raw.get("data_dir", "../shared/data"))
+    data_dir = Path(env).resolve() if env else Path(raw.get("data_dir") or
+                                                    path.parent / "../../shared/data").resolve()
+    results_dir = Path(raw.get("results_dir") or path.parent / "results")
     recordings = _str_list(raw["recordings"], "recordings", bad)
     training = _str_list(raw.get("training", []), "training", bad)
     protocol = str(raw["protocol"])
     if protocol not in gaps.PROTOCOLS:
         raise bad(f"unknown protocol {protocol!r}; expected one of {', '.join(gaps.PROTOCOLS)}")
-    grid = raw.get("grid") or {}
+    grid = _grid(raw.get("grid") or {}, bad)
+    seeds = raw.get("seeds", [0])
+    seeds = list(seeds) if isinstance(seeds, (list, tuple)) else [seeds]
+    if not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
+        raise bad(f"seeds expected a list of ints, found {raw.get('seeds')!r}")
+    frames, segments = _frames(raw.get("frames"), raw.get("segments"), bad)
+    methods, skipped = _methods(raw["methods"], bad)
+    metric_names = _metrics(raw.get("metrics", DEFAULT_METRICS), bad)
+    keys = (["segment"] if segments else []) + list(grid)
+    table = _table(raw.get("table"), keys, metric_names, bad)
+    references = _references(raw.get("references"), table, bad)
+    _check_files(data_dir, recordings + training, "recording", bad)
+    for m in methods:
+        own = m.params.get("training")
+        if own == SELF and not segments:
+            raise bad(f"methods.{m.label}: training: self needs `segments:` (the rest of the "
+                      "recording outside the test segment)")
+        if own not in (None, SELF):
+            _check_files(data_dir, _str_list(own, f"methods.{m.label}.training", bad),
+                         f"methods.{m.label}: training recording", bad)
+    return Config(path=path, name=str(raw.get("name") or path.stem), data_dir=data_dir,
+                  results_dir=results_dir, recordings=recordings, protocol=protocol, grid=grid,
+                  seeds=seeds, methods=methods, metrics=metric_names, table=table,
+                  training=training, frames=frames, segments=segments, references=references,
+                  skipped=skipped, plots=dict(raw.get("plots") or {}),
+                  showcase=dict(raw.get("showcase") or {}), device=str(raw.get("device", "cpu")),
+                  dtype=str(raw.get("dtype", "float64")), log=bool(raw.get("log", True)), raw=raw)
+
+
+def _grid(grid, bad) -> dict[str, list]:
     if not isinstance(grid, dict):
         raise bad(f"grid expected a mapping of protocol arguments to lists, found {grid!r}")
     grid = {str(k): (list(v) if isinstance(v, (list, tuple)) else [v]) for k, v in grid.items()}
     if any(not v for v in grid.values()):
         raise bad("grid has an empty list")
-    seeds = raw.get("seeds", [0])
-    seeds = list(seeds) if isinstance(seeds, (list, tuple)) else [seeds]
-    if not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
-        raise bad(f"seeds expected a list of ints, found {raw.get('seeds')!r}")
-    methods = _methods(raw["methods"], bad)
-    metric_names = _str_list(raw.get("metrics", DEFAULT_METRICS), "metrics", bad)
-    known = set(metrics.score(*_tiny()))
-    missing = [m for m in metric_names if m not in known]
+    if "segment" in grid:
+        raise bad("grid key 'segment' is reserved (use `segments: {length: L, count: n}`)")
+    return grid
+
+
+def _frames(frames, segments, bad):
+    if frames is not None:
+        if not (isinstance(frames, (list, tuple)) and len(frames) == 2
+                and all(isinstance(f, int) for f in frames) and 0 <= frames[0] < frames[1]):
+            raise bad(f"frames expected [start, stop] with 0 <= start < stop, found {frames!r}")
+        frames = (int(frames[0]), int(frames[1]))
+    if segments is not None:
+        if frames is not None:
+            raise bad("frames and segments exclude each other")
+        if not (isinstance(segments, dict) and set(segments) == {"length", "count"}
+                and all(isinstance(v, int) and v > 0 for v in segments.values())):
+            raise bad(f"segments expected {{length: frames, count: n}} with positive ints, "
+                      f"found {segments!r}")
+        segments = (segments["length"], segments["count"])
+    return frames, segments
+
+
+def _metrics(value, bad) -> list[str]:
+    from .rows import SCORE_METRICS
+
+    names = _str_list(value, "metrics", bad)
+    missing = [m for m in names if m not in SCORE_METRICS]
     if missing:
-        raise bad(f"unknown metric(s) {missing}; expected some of {sorted(known)}")
-    table = dict(raw.get("table") or {})
-    table.setdefault("rows", ["recording", *grid])
+        raise bad(f"unknown metric(s) {missing}; expected some of {SCORE_METRICS}")
+    return names
+
+
+def _table(value, keys: list[str], metric_names: list[str], bad) -> dict[str, Any]:
+    table = dict(value or {})
+    unknown = set(table) - {"rows", "columns", "metric", "digits"}
+    if unknown:
+        raise bad(f"table: unknown key(s) {sorted(unknown)}; "
+                  "expected rows, columns, metric, digits")
+    rows = table.get("rows", ["recording", *keys])
+    table["rows"] = [rows] if isinstance(rows, str) else list(rows)
     table.setdefault("columns", "method")
     table.setdefault("metric", metric_names[0])
-    for key in (table["rows"] if isinstance(table["rows"], list) else [table["rows"]]):
-        if key not in ("recording", "seed", *grid):
-            raise bad(f"table row {key!r} is neither 'recording', 'seed' nor a grid key {list(grid)}")
-    frames = raw.get("frames")
-    if frames is not None:
-        if not (isinstance(frames, (list, tuple)) and len(frames) == 2):
-            raise bad(f"frames expected [start, stop], found {frames!r}")
-        frames = (int(frames[0]), int(frames[1]))
-    return Config(path=path, name=name, data_dir=data_dir, recordings=recordings,
-                  protocol=protocol, grid=grid, seeds=seeds, methods=methods,
-                  metrics=metric_names, table=table, training=training, frames=frames,
-                  plots=dict(raw.get("plots") or {}), showcase=dict(raw.get("showcase") or {}),
-                  device=str(raw.get("device", "cpu")), dtype=str(raw.get("dtype", "float64")),
-                  log=bool(raw.get("log", True)), raw=raw)
+    table.setdefault("digits", 2)
+    for key in table["rows"] + [table["columns"]]:
+        if key not in ("recording", "seed", "method", *keys):
+            raise bad(f"table key {key!r} is neither 'recording', 'seed', 'method' "
+                      f"nor one of {keys}")
+    if table["metric"] not in metric_names:
+        raise bad(f"table metric {table['metric']!r} is not in metrics {metric_names}")
+    return table
 
 
-def _tiny():
-    import numpy as np
+def _references(value, table: dict, bad) -> dict[str, list[dict]]:
+    """``{label: [{<table row keys>..., <metric>: value}, ...]}``: published numbers shown as a
+    column beside the methods (e.g. the paper's or the authors' code's)."""
+    from .rows import SCORE_METRICS
 
-    return np.zeros((2, 1, 3)), np.zeros((2, 1, 3)), np.zeros((2, 1), dtype=bool)
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise bad(f"references expected a mapping of label to a list of rows, found {value!r}")
+    out = {}
+    for label, entries in value.items():
+        if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+            raise bad(f"references.{label} expected a list of mappings, found {entries!r}")
+        for e in entries:
+            extra = set(e) - set(table["rows"]) - set(SCORE_METRICS)
+            if extra or not set(table["rows"]) <= set(e):
+                raise bad(f"references.{label}: {e} expected the table rows {table['rows']} "
+                          f"and metric values")
+        out[str(label)] = [{k: str(v) if k in table["rows"] else float(v) for k, v in e.items()}
+                           for e in entries]
+    return out
+
+
+def _check_files(data_dir: Path, names: list[str], what: str, bad) -> None:
+    for name in names:
+        if not (data_dir / name).is_file():
+            raise bad(f"{what} {name} not found in {data_dir}")
 
 
 def _str_list(value, key: str, bad) -> list[str]:
@@ -199,19 +298,30 @@ def _str_list(value, key: str, bad) -> list[str]:
     return list(value)
 
 
-def _methods(value, bad) -> list[Method]:
+def _methods(value, bad) -> tuple[list[Method], list[str]]:
     """``{label: {params}}``; a ``method:`` entry in params picks the solver (default: the label),
-    so one solver can appear twice with different hyperparameters (``tucker_r10: {method: tucker}``)."""
+    so one solver can appear twice with different hyperparameters (``tucker_r10: {method: tucker}``).
+    Returns the registered methods (hyperparameters checked by building each solver once) and the
+    labels of those that are not registered."""
+    from ..solvers import available, get_solver
+
     if isinstance(value, (list, tuple)):
         value = {str(v): {} for v in value}
     if not isinstance(value, dict) or not value:
         raise bad(f"methods expected a mapping of method name to hyperparameters, found {value!r}")
-    out = []
+    out, skipped = [], []
     for label, params in value.items():
         params = {} if params is None else params
         if not isinstance(params, dict):
             raise bad(f"methods.{label} expected a mapping of hyperparameters, found {params!r}")
         params = dict(params)
-        solver = str(params.pop("method", label))
-        out.append(Method(str(label), solver, params))
-    return out
+        method = Method(str(label), str(params.pop("method", label)), params)
+        if method.solver not in available():
+            skipped.append(method.label)
+            continue
+        try:
+            get_solver(method.solver, **{k: v for k, v in params.items() if k != "training"})
+        except (TypeError, ValueError) as err:
+            raise bad(f"methods.{label}: {' '.join(str(err).split())}") from None
+        out.append(method)
+    return out, skipped

@@ -68,6 +68,30 @@ def load_recording(path: Path, frames: tuple[int, int] | None = None) -> Recordi
                      units=seq.units)
 
 
+def segment_starts(T: int, length: int, count: int) -> list[int]:
+    """First frames of ``count`` test segments of ``length`` frames spread evenly over ``T`` frames
+    (Li et al. 2020 cut test segments from longer recordings); fewer when they would coincide."""
+    if T < length:
+        return []
+    if T == length:
+        return [0]
+    return sorted(set(np.linspace(0, T - length, count + 2)[1:-1].round().astype(int).tolist()))
+
+
+def cut_segment(rec: Recording, length: int, count: int, index: int) -> tuple[Recording, list]:
+    """Test segment ``index`` of ``rec`` and the rest of the recording (a list of the complete
+    stretches before and after it: the self-training set, which never overlaps the segment)."""
+    starts = segment_starts(rec.shape[0], length, count)
+    if index >= len(starts):
+        raise ValueError(f"{rec.name}: {rec.shape[0]} frames hold {len(starts)} distinct segments "
+                         f"of {length} frames, not {index + 1}")
+    s0 = starts[index]
+    seg = Recording(name=rec.name, truth=rec.truth[s0:s0 + length], labels=rec.labels,
+                    dropped=rec.dropped, rate=rec.rate, units=rec.units)
+    rest = [part for part in (rec.truth[:s0], rec.truth[s0 + length:]) if part.shape[0]]
+    return seg, rest
+
+
 @functools.lru_cache(maxsize=16)
 def _read_cached(path: Path) -> MarkerSequence:
     return read_sequence(path)

@@ -59,6 +59,8 @@ class SolverModule(pl.LightningModule):
             self.initialized = True
         self.solver.step_and_record()
         self.solve_seconds += time.perf_counter() - start
+        if self.solver.history_:   # wall time inside the solver so far, for loss-vs-time curves
+            self.solver.history_[-1].setdefault("time_s", self.solve_seconds)
         return None
 
     def on_train_end(self) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .report import _num, _ok, _sort_key
+from .rows import num as _num, ok as _ok, sort_key as _sort_key
 
 
 def _plt():
@@ -107,12 +107,17 @@ def _convergence(cfg, rows, out_dir, runs_dir, order, metric):
     fig, axes = plt.subplots(1, 1 + len(obs_keys), figsize=(3.8 * (1 + len(obs_keys)), 3.3),
                              squeeze=False)
     axes = axes[0]
+    by_time = cfg.plots.get("convergence_x") == "time_s" and has("time_s")
     for i, d in enumerate(data):
         color, name = f"C{i}", str(d["method"])
         ck, hk = list(d["curve_keys"]), list(d["history_keys"])
-        axes[0].plot(d["curve"][:, ck.index("iter")], d["curve"][:, ck.index("rmse")],
-                     color=color, label=name)
         it = d["history"][:, hk.index("iter")]
+        x_curve = d["curve"][:, ck.index("iter")]
+        if by_time:         # seconds inside the solver at each iteration (the Lightning history)
+            seconds = d["history"][:, hk.index("time_s")] if "time_s" in hk else it * np.nan
+            x_curve = np.interp(x_curve, it, seconds)
+            it = seconds
+        axes[0].plot(x_curve, d["curve"][:, ck.index("rmse")], color=color, label=name)
         for ax, key in zip(axes[1:], obs_keys):
             if key == "ranks":
                 for n, rk in enumerate(_rank_keys(d)):
@@ -129,7 +134,7 @@ def _convergence(cfg, rows, out_dir, runs_dir, order, metric):
         else:
             ax.set_yscale("log")
     for ax in axes:
-        ax.set_xlabel("iteration")
+        ax.set_xlabel("solver time (s)" if by_time else "iteration")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()

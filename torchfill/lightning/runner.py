@@ -1,11 +1,17 @@
-"""Run an experiment config end to end: every case under a Lightning Trainer, results as they finish.
+"""Run an experiment config: plan -> execute -> report.
 
 ``run_experiment("experiments/tucker_table2.yaml")`` (or ``torchfill experiment CONFIG``, or
-``python -m torchfill.lightning.runner CONFIG``) expands the config into cases (recording x grid point
-x seed x method), runs each (in parallel over local processes with ``workers > 1``), appends each
-finished case to ``cases.csv`` at once (so ``resume=True`` skips finished cases after an
-interruption), then writes ``table.md`` and the PNG plots. Per-iteration logs go under
-``experiments/runs/<name>/`` (not committed); the small results under ``experiments/results/<name>/``.
+``python -m torchfill.lightning.runner CONFIG``) does three things:
+
+1. :func:`plan` loads and validates the config (:func:`~torchfill.lightning.config.load_config`),
+   reads each recording once to check that every grid point fits it, and lists the cases still to
+   run (with ``resume=True``, those not finished in an earlier ``cases.csv``);
+2. :func:`execute` runs them (in this process, or ``workers > 1`` local processes), each under a
+   Lightning Trainer, appending each finished case's row to ``cases.csv`` at once;
+3. :func:`report` writes ``table.md`` and the PNG plots from ``cases.csv``.
+
+Results go to ``<results_dir>/<name>/`` (default ``results/`` beside the config file), per-iteration
+logs to ``<results_dir>/../runs/<name>/`` (or ``<output>/runs`` when ``output`` is given).
 """
 from __future__ import annotations
 
@@ -17,16 +23,14 @@ import multiprocessing
 import os
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .config import REPO_ROOT, Case, Config, load_config
-
-SCORE_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
-TAIL = ["solver", *SCORE_METRICS, "n_iter", "converged", "stop", "solve_s", "wall_s", "T", "J",
-        "status"]
+from . import rows as R
+from .config import SELF, Case, Config, load_config
 
 
 # -- one case (runs in a worker process, or in-process with workers=1) ----------------------------
@@ -40,41 +44,30 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     """Run one case; returns its ``cases.csv`` row (``status`` says "ok" or the error)."""
     from ..solvers import get_solver
     from .callbacks import Convergence, Evaluation, HistoryLogger
-    from .data import CaseDataModule, align_training, load_recording, make_mask
+    from .data import CaseDataModule
     from .module import fit
 
     import torch
 
     cfg = _config(config_path)
-    row = _key_row(cfg, case)
+    row = R.key_row(case)
     start = time.perf_counter()
     try:
-        rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
-        mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
-        params = _training_params(cfg, case, rec.labels, get_solver, align_training)
-        solver = get_solver(case.method.solver, **params)
+        rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
+        solver = get_solver(case.method.solver, **_training_params(cfg, case, rec.labels, rest))
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
         evaluation = Evaluation(every=1 if showcase else 0)
         stop = Convergence()
-        callbacks = [stop, HistoryLogger(), evaluation]
-        logger = False
-        if cfg.log:
-            from pytorch_lightning.loggers import CSVLogger
-            logger = [CSVLogger(str(Path(runs_dir) / "logs"), name=case.slug, version="")]
-            try:
-                from pytorch_lightning.loggers import TensorBoardLogger
-                import tensorboard  # noqa: F401  (optional)
-                logger.append(TensorBoardLogger(str(Path(runs_dir) / "tb"), name=case.slug, version=""))
-            except ImportError:
-                pass
         accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
-        module = fit(solver, dm, callbacks=callbacks, logger=logger, progress=progress,
+        module = fit(solver, dm, callbacks=[stop, HistoryLogger(), evaluation],
+                     logger=_loggers(cfg, case, runs_dir), progress=progress,
                      accelerator=accelerator)
-        row.update(solver=case.method.solver, **{k: evaluation.final.get(k, "") for k in SCORE_METRICS},
-                   n_iter=solver.n_iter_, converged=solver.converged_, stop=stop.reason,
-                   solve_s=round(module.solve_seconds, 4), T=rec.shape[0], J=rec.shape[1],
-                   status="ok")
+        row.update(solver=case.method.solver,
+                   **{k: evaluation.final.get(k, "") for k in R.SCORE_METRICS},
+                   n_iter=solver.n_iter_, rank=R.solver_rank(solver), converged=solver.converged_,
+                   stop=stop.reason, solve_s=round(module.solve_seconds, 4), T=rec.shape[0],
+                   J=rec.shape[1], status="ok")
         if showcase:
             _save_showcase(_showcase_path(runs_dir, case), case, rec, mask, evaluation,
                            solver.history_)
@@ -85,18 +78,54 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     return row
 
 
-def _training_params(cfg: Config, case: Case, labels, get_solver, align_training) -> dict:
+def case_data(cfg: Config, recording: str, point, seed: int):
+    """``(recording, mask, rest)`` of a case: the recording (or its test segment), the gap mask
+    and, with ``segments``, the rest of the recording (the self-training set; else None). Segment
+    ``i``'s masks use seed ``1000 i + seed``."""
+    from .data import cut_segment, load_recording, make_mask
+
+    rec = load_recording(cfg.recording_path(recording), cfg.frames)
+    point, rest = dict(point), None
+    if "segment" in point:
+        index = point.pop("segment")
+        rec, rest = cut_segment(rec, *cfg.segments, index)
+        seed = 1000 * index + seed
+    return rec, make_mask(cfg.protocol, rec.shape, point, seed), rest
+
+
+def _loggers(cfg: Config, case: Case, runs_dir: str):
+    """Per-case CSV logs of every iteration's history (and TensorBoard when installed)."""
+    if not cfg.log:
+        return False
+    from pytorch_lightning.loggers import CSVLogger
+
+    logger = [CSVLogger(str(Path(runs_dir) / "logs"), name=case.slug, version="")]
+    try:
+        from pytorch_lightning.loggers import TensorBoardLogger
+        import tensorboard  # noqa: F401  (optional)
+        logger.append(TensorBoardLogger(str(Path(runs_dir) / "tb"), name=case.slug, version=""))
+    except ImportError:
+        pass
+    return logger
+
+
+def _training_params(cfg: Config, case: Case, labels, rest) -> dict:
     """The method's hyperparameters, with ``training`` as arrays ``(T_i, J, 3)`` aligned by short
     label to ``labels``: the config's ``training`` recordings for every solver that declares
-    ``training``, unless the method sets its own (recording names, or ``~`` = none, which leaves
-    the solver to train on the recording itself)."""
+    ``training``, unless the method sets its own (recording names; ``self``, the rest of the test
+    recording outside its segment; or ``~`` = none: the solver trains on what it is given)."""
+    from ..solvers import get_solver
+    from .data import align_training
+
     params = dict(case.method.params)
     own = "training" in params
     declared = "training" in type(get_solver(case.method.solver)).declared_params()
     if not own and not (cfg.training and declared):
         return params
     names = params["training"] if own else cfg.training
-    if names is not None:
+    if names == SELF:
+        params["training"] = [part.copy() for part in rest]
+    elif names is not None:
         names = [names] if isinstance(names, str) else names
         params["training"] = [align_training(cfg.recording_path(n), labels) for n in names]
     return params
@@ -115,11 +144,6 @@ def _save_showcase(path: Path, case: Case, rec, mask, evaluation, history) -> No
                         history_keys=np.array(keys), curve=curve, curve_keys=np.array(curve_keys),
                         method=case.method.label, key=np.array(case.key))
     os.replace(tmp, path)
-
-
-def _key_row(cfg: Config, case: Case) -> dict[str, Any]:
-    return {"recording": case.recording, **dict(case.point), "seed": case.seed,
-            "method": case.method.label}
 
 
 def threads_per_case() -> int:
@@ -159,70 +183,72 @@ def _init_worker(threads: int = 1) -> None:
     torch.set_num_threads(threads)
 
 
-# -- the experiment -------------------------------------------------------------------------------
-def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
-                   output=None) -> Path:
-    """Run every case of ``config_path``; returns the output folder.
+# -- plan -> execute -> report --------------------------------------------------------------------
+@dataclass
+class Plan:
+    """What :func:`execute` runs and :func:`report` summarizes (see :func:`plan`)."""
 
-    Parameters
-    ----------
-    config_path : path to the YAML config.
-    resume : keep the finished cases of an earlier ``cases.csv`` and run only the others.
-    workers : number of local processes (each with one torch thread); 1 runs in this process.
-    limit : run at most this many cases (the first ones, in config order).
-    output : folder for the results (default ``experiments/results/<name>``); per-iteration logs go
-        to ``experiments/runs/<name>`` (or ``<output>/runs`` when ``output`` is given).
+    cfg: Config
+    out_dir: Path
+    runs_dir: Path
+    header: list[str]
+    cases: list[Case]                              # every case (after ``limit``)
+    todo: list[Case]                               # those still to run
+    done: dict[tuple, dict] = field(default_factory=dict)   # finished rows kept from cases.csv
+    showcase: tuple = ()                           # (recording, point, seed) drawn in the plots
+    notes: list[str] = field(default_factory=list)  # one line per recording
+
+    @property
+    def csv_path(self) -> Path:
+        return self.out_dir / "cases.csv"
+
+
+def plan(config_path, *, resume: bool = False, limit: int | None = None, output=None) -> Plan:
+    """Validate the config, check every grid point against every recording, list the cases to run.
+
+    ``output`` (relative to the working directory) replaces ``<results_dir>/<name>``; its
+    per-iteration logs then go to ``<output>/runs``. Without ``resume`` an earlier ``cases.csv`` is
+    discarded; with it, its finished rows are kept (failed cases and a stale showcase run again).
     """
-    from ..solvers import available, get_solver
-
     cfg = load_config(config_path)
-    if workers < 1:
-        raise ValueError(f"{cfg.path.name}: workers expected >= 1, found {workers}")
-    out_dir = Path(output) if output is not None else REPO_ROOT / "experiments" / "results" / cfg.name
-    runs_dir = out_dir / "runs" if output is not None else REPO_ROOT / "experiments" / "runs" / cfg.name
-    out_dir.mkdir(parents=True, exist_ok=True)
-
-    methods, skipped = [], []
-    for m in cfg.methods:
-        if m.solver not in available():
-            skipped.append(m.label)
-            print(f"{cfg.name}: method {m.label!r} ({m.solver}) is not registered; skipped", flush=True)
-            continue
-        try:
-            get_solver(m.solver, **{k: v for k, v in m.params.items() if k != "training"})
-            names = m.params.get("training") or []
-            for name in [names] if isinstance(names, str) else names:
-                if not isinstance(name, str) or not cfg.recording_path(name).is_file():
-                    raise ValueError(f"training recording {name!r} not found in {cfg.data_dir}")
-        except ValueError as err:
-            raise ValueError(f"{cfg.path.name}: methods.{m.label}: {err}") from None
-        methods.append(m)
+    for m in cfg.skipped:
+        print(f"{cfg.name}: method {m!r} is not registered; skipped", flush=True)
+    if output is not None:
+        out_dir = Path(output).resolve()
+        runs_dir = out_dir / "runs"
+    else:
+        out_dir = cfg.results_dir / cfg.name
+        runs_dir = cfg.results_dir.parent / "runs" / cfg.name
     notes = _check_recordings(cfg)
-    for note in notes:
-        print(note, flush=True)
-
-    cases = cfg.cases(methods)
+    cases = cfg.cases()
     if limit is not None:
         cases = cases[:max(0, int(limit))]
-    columns = ["recording", *cfg.grid, "seed", "method", *TAIL]
+    header = R.columns(cfg.keys)
     csv_path = out_dir / "cases.csv"
-    done = _read_done(csv_path, columns, cfg) if resume else {}
+    done = _read_done(csv_path, header, cfg) if resume else {}
     showcase = _showcase_key(cfg)
     for case in cases:     # a showcase case whose plot arrays are missing or stale runs again
         if _is_showcase(case, showcase) and not _showcase_current(runs_dir, case):
             done.pop(case.key, None)
-    if not resume and csv_path.exists():
-        csv_path.unlink()
-    _rewrite(csv_path, columns, list(done.values()))
     todo = [c for c in cases if c.key not in done]
-    if resume and done:
-        print(f"{cfg.name}: resuming, {len(cases) - len(todo)} of {len(cases)} cases already done",
-              flush=True)
+    return Plan(cfg, out_dir, runs_dir, header, cases, todo, done, showcase, notes)
 
+
+def execute(p: Plan, *, workers: int = 1) -> None:
+    """Run ``p.todo``, appending each finished case's row to ``cases.csv`` (flushed at once)."""
+    cfg = p.cfg
+    if workers < 1:
+        raise ValueError(f"{cfg.path.name}: workers expected >= 1, found {workers}")
+    p.out_dir.mkdir(parents=True, exist_ok=True)
+    R.rewrite(p.csv_path, p.header, list(p.done.values()))
+    if p.done:
+        print(f"{cfg.name}: resuming, {len(p.cases) - len(p.todo)} of {len(p.cases)} cases "
+              "already done", flush=True)
+    todo = p.todo
     progress = workers == 1 and sys.stdout.isatty()
     start = time.perf_counter()
-    with open(csv_path, "a", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns)
+    with open(p.csv_path, "a", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=p.header)
 
         def record(i: int, row: dict) -> None:
             writer.writerow(row)
@@ -232,12 +258,12 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
             result = (f"{metric}={float(row[metric]):.4g}, {row['n_iter']} it"
                       if row["status"] == "ok" else row["status"])
             print(f"[{i}/{len(todo)}] {row['recording']} "
-                  + " ".join(f"{k}={row[k]}" for k in cfg.grid)
+                  + " ".join(f"{k}={row[k]}" for k in cfg.keys)
                   + f" seed={row['seed']} {row['method']}: {result}, {row['wall_s']:.2f} s",
                   flush=True)
 
-        args = [(str(cfg.path), c, str(runs_dir)) for c in todo]
-        show = [_is_showcase(c, showcase) for c in todo]
+        args = [(str(cfg.path), c, str(p.runs_dir)) for c in todo]
+        show = [_is_showcase(c, p.showcase) for c in todo]
         threads = threads_per_case()
         if workers == 1:
             import torch
@@ -265,32 +291,62 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     elapsed = time.perf_counter() - start
     print(f"{cfg.name}: {len(todo)} case(s) in {elapsed:.1f} s with {workers} worker(s)", flush=True)
 
-    from . import report
 
-    rows = _read_rows(csv_path)
-    report.write_report(cfg, rows, out_dir, runs_dir, notes=notes, skipped=skipped,
-                        command=_command(cfg, workers))
-    return out_dir
+def report(p: Plan, *, workers: int = 1) -> Path:
+    """``table.md`` and the plots from ``cases.csv``; returns the output folder."""
+    from . import report as report_mod
+
+    report_mod.write_report(p.cfg, R.read_rows(p.csv_path), p.out_dir, p.runs_dir, notes=p.notes,
+                            skipped=p.cfg.skipped, command=_command(p.cfg, workers))
+    return p.out_dir
+
+
+def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
+                   output=None, report_only: bool = False) -> Path:
+    """Run every case of ``config_path``: :func:`plan`, :func:`execute`, :func:`report`.
+
+    Parameters
+    ----------
+    config_path : path to the YAML config.
+    resume : keep the finished cases of an earlier ``cases.csv`` and run only the others.
+    workers : number of local processes (each with one torch thread); 1 runs in this process.
+    limit : run at most this many cases (the first ones, in config order).
+    output : folder for the results (default ``<results_dir>/<name>``, ``results_dir`` defaulting
+        to ``results/`` beside the config file); per-iteration logs go to ``<output>/runs``.
+    report_only : run nothing; rewrite ``table.md`` and the plots from the ``cases.csv`` there.
+
+    Returns
+    -------
+    Path : the output folder.
+    """
+    p = plan(config_path, resume=resume or report_only, limit=limit, output=output)
+    for note in p.notes:
+        print(note, flush=True)
+    if report_only:
+        if not p.csv_path.exists():
+            raise ValueError(f"{p.cfg.path.name}: {p.csv_path} not found; nothing to report")
+        print(f"{p.cfg.name}: report of {len(p.done)} finished case(s); {len(p.todo)} not run",
+              flush=True)
+    else:
+        execute(p, workers=workers)
+    return report(p, workers=workers)
 
 
 def _check_recordings(cfg: Config) -> list[str]:
-    """Load every recording once (errors name the config), check each grid point fits it."""
-    from .data import load_recording, make_mask
+    """Read every recording once (errors name the config) and check each grid point fits it (and
+    each of its segments); returns one note per recording."""
+    from .data import load_recording
 
     notes = []
-    for name in cfg.recordings + cfg.training:
-        path = cfg.recording_path(name)
-        if not path.is_file():
-            raise ValueError(f"{cfg.path.name}: recording {name} not found in {cfg.data_dir}")
     for name in cfg.recordings:
         try:
             rec = load_recording(cfg.recording_path(name), cfg.frames)
         except ValueError as err:
-            raise ValueError(f"{cfg.path.name}: {err}") from None
+            raise ValueError(f"{cfg.path.name}: {' '.join(str(err).split())}") from None
         notes.append(rec.note())
         for point in cfg.points():
             try:
-                make_mask(cfg.protocol, rec.shape, dict(point), cfg.seeds[0])
+                case_data(cfg, name, point, cfg.seeds[0])
             except (TypeError, ValueError) as err:
                 raise ValueError(f"{cfg.path.name}: {cfg.protocol} {dict(point)} on {name}: "
                                  f"{' '.join(str(err).split())}") from None
@@ -325,44 +381,22 @@ def _showcase_current(runs_dir, case: Case) -> bool:
         return False
 
 
-def _read_rows(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    with open(path, newline="") as handle:
-        reader = csv.DictReader(handle)
-        n = len(reader.fieldnames or [])
-        return [r for r in reader if None not in r and None not in r.values() and len(r) == n]
-
-
-def _read_done(path: Path, columns: list[str], cfg: Config) -> dict[tuple, dict]:
-    """Finished rows (status ok) of an earlier run, by case key; a torn last line is dropped."""
+def _read_done(path: Path, header: list[str], cfg: Config) -> dict[tuple, dict]:
+    """Finished rows (status ok) of an earlier run, by case key; a torn last line is dropped. A
+    file written before a column was added is accepted (the new cells stay empty)."""
     if not path.exists():
         return {}
-    with open(path, newline="") as handle:
-        header = next(csv.reader(handle), None)
-    if header != columns:
-        raise ValueError(f"{cfg.path.name}: {path} has columns {header}, expected {columns}; "
+    found = R.read_header(path) or []
+    if not set(found) <= set(header) or found[:len(R.columns(cfg.keys)) - len(R.TAIL)] != \
+            header[:len(header) - len(R.TAIL)]:
+        raise ValueError(f"{cfg.path.name}: {path} has columns {found}, expected {header}; "
                          "run without --resume to start over")
-    done = {}
-    for row in _read_rows(path):
-        if row["status"] == "ok":
-            key = (row["recording"], *(row[k] for k in cfg.grid), row["seed"], row["method"])
-            done[key] = row
-    return done
-
-
-def _rewrite(path: Path, columns: list[str], rows: list[dict]) -> None:
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+    return {R.row_key(row, cfg.keys): row for row in R.read_rows(path) if row["status"] == "ok"}
 
 
 def _command(cfg: Config, workers: int) -> str:
     try:
-        rel = cfg.path.relative_to(REPO_ROOT)
+        rel = cfg.path.relative_to(Path.cwd())
     except ValueError:
         rel = cfg.path
     return f"torchfill experiment {rel}" + (f" --workers {workers}" if workers > 1 else "")
@@ -376,10 +410,12 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=1, help="local processes (default 1)")
     parser.add_argument("--limit", type=int, default=None, help="run at most K cases")
     parser.add_argument("--output", default=None, help="results folder")
+    parser.add_argument("--report-only", action="store_true",
+                        help="only rewrite table.md and the plots from cases.csv")
     args = parser.parse_args(argv)
     try:
         out = run_experiment(args.config, resume=args.resume, workers=args.workers,
-                             limit=args.limit, output=args.output)
+                             limit=args.limit, output=args.output, report_only=args.report_only)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
