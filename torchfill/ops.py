@@ -59,15 +59,17 @@ def soft_threshold(x: Tensor, tau: float | Tensor) -> Tensor:
     return torch.sign(x) * torch.clamp(x.abs() - tau, min=0.0)
 
 
-def svt(M: Tensor, tau: float | Tensor) -> tuple[Tensor, int]:
+def svt(M: Tensor, tau: float | Tensor, keep: int = 0) -> tuple[Tensor, int]:
     """Singular value thresholding ``D_tau(M) = U max(S - tau, 0) V^T`` (prox of ``tau ||.||_*``).
 
+    ``keep`` leading singular values are left untouched (partial singular value thresholding,
+    the prox of ``tau`` times the partial sum ``sum_{i > keep} sigma_i``). Real or complex ``M``.
     Returns the thresholded matrix and the number of singular values kept.
     """
     U, S, Vh = torch.linalg.svd(M, full_matrices=False)
-    S = torch.clamp(S - tau, min=0.0)
+    S = torch.cat([S[:keep], torch.clamp(S[keep:] - tau, min=0.0)])
     r = int((S > 0).sum())
-    return (U[:, :r] * S[:r]) @ Vh[:r], r
+    return (U[:, :r] * S[:r].to(U.dtype)) @ Vh[:r], r
 
 
 def orthonormalize(A: Tensor) -> Tensor:
