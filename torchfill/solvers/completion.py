@@ -193,9 +193,11 @@ class PSTNN(_ADMMCompletion):
 
     name = "pstnn"
     params = {
-        "N": Param(1, int, low=0,
+        "N": Param(3, int, low=0,
                    doc="number of leading singular values of each Fourier slice left "
-                       "unpenalized (the partial sum's N; 0 = the tubal nuclear norm)"),
+                       "unpenalized (the partial sum's N; 0 = the tubal nuclear norm). "
+                       "Chosen on CMU 02_01 (seed 0, 10x20 / 20x50 / 30x100): N = 0 / 3 / 8 gave "
+                       "0.56 / 0.36 / 0.31, 14.9 / 1.96 / 6.3, 136 / 7.1 / 44.5 mm RMSE"),
     }
 
     def _setup(self) -> None:
