@@ -7,7 +7,8 @@ Prints, per method, the median wall time of ``--repeat`` full fills (default 3),
 RMSE over all entries (mm), and ``uptime`` (the machine is shared: quote the load). Targets of the
 issue: <= 5 s for (1) and <= 10 s for (2).
 
-Usage: ``OMP_NUM_THREADS=1 nice .venv/bin/python scripts/bench_tensor_baselines.py [--repeat 3]``
+Usage (from the repository root): ``PYTHONPATH=. OMP_NUM_THREADS=1 nice .venv/bin/python
+scripts/bench_tensor_baselines.py [--repeat 3]``
 """
 from __future__ import annotations
 
