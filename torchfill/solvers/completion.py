@@ -134,8 +134,9 @@ class HaLRTC(_ADMMCompletion):
         X   = P_Omega(T) + P_Omega^c(1/N sum_i (M_i - Y_i/rho))
         Y_i = Y_i - rho (M_i - X)
 
-    ``alpha`` defaults to the paper's equal weights. Defaults chosen on CMU 02_01 and 85_02
-    (simulated gaps; see experiments/results/cp_baselines.md).
+    ``alpha`` defaults to the paper's equal weights. On shared-window gaps of many markers the
+    nuclear norms pull the fill toward the mean pose (CMU 02_01, 30 x 100: 137 mm; other weights
+    did not help; see experiments/results/cp_baselines.md).
 
     References
     ----------
