@@ -162,6 +162,18 @@ def test_svt_is_prox_of_nuclear_norm():
         assert obj(X) <= obj(X + 1e-3 * rand(10, 8, seed=100 + seed)) + 1e-12
 
 
+@pytest.mark.parametrize("keep", [1, 3])
+def test_partial_svt_keeps_leading_singular_values(keep):
+    """``keep`` leading singular values untouched, the rest shrunk (PSTNN's shrinkage), real and
+    complex input."""
+    M = rand(20, 9, seed=18)
+    for A in (M, torch.complex(M, rand(20, 9, seed=19))):
+        got, _ = ops.svt(A, 0.5, keep=keep)
+        S = torch.linalg.svdvals(A)
+        want = torch.cat([S[:keep], torch.clamp(S[keep:] - 0.5, min=0.0)])
+        torch.testing.assert_close(torch.linalg.svdvals(got)[:len(want)], want)
+
+
 def test_orthonormalize():
     Q = ops.orthonormalize(rand(20, 4, seed=18))
     torch.testing.assert_close(Q.T @ Q, torch.eye(4, dtype=torch.float64))

@@ -25,9 +25,11 @@ def gram_svd(X: Tensor) -> tuple[Tensor, Tensor]:
     return torch.sqrt(torch.clamp(lam, min=0.0)), V
 
 
-def svt(M: Tensor, tau: float | Tensor, method: str = "full") -> tuple[Tensor, int]:
+def svt(M: Tensor, tau: float | Tensor, method: str = "full", keep: int = 0) -> tuple[Tensor, int]:
     """Singular value thresholding ``D_tau(M) = U max(S - tau, 0) V^T`` (prox of ``tau ||.||_*``).
 
+    ``keep`` leading singular values are left untouched (partial SVT, the prox of ``tau`` times
+    ``sum_{i > keep} sigma_i``, used by PSTNN); ``M`` may be complex with ``method="full"``.
     ``method="full"``: a thin ``torch.linalg.svd``. ``method="gram"``: ``M V diag(max(s - tau, 0)
     / s) V^T`` from the Gram matrix of the thinner side -- for a recording's ``T x 3J`` unfolding
     one 3J x 3J eigendecomposition instead of an SVD of the long matrix (squares the condition
@@ -36,11 +38,11 @@ def svt(M: Tensor, tau: float | Tensor, method: str = "full") -> tuple[Tensor, i
     """
     if method == "full":
         U, S, Vh = torch.linalg.svd(M, full_matrices=False)
-        S = torch.clamp(S - tau, min=0.0)
+        S = torch.cat([S[:keep], torch.clamp(S[keep:] - tau, min=0.0)])
         r = int((S > 0).sum())
-        return (U[:, :r] * S[:r]) @ Vh[:r], r
-    if method != "gram":
-        raise ValueError(f"svt: method expected 'full' or 'gram', found {method!r}")
+        return (U[:, :r] * S[:r].to(U.dtype)) @ Vh[:r], r
+    if method != "gram" or keep:
+        raise ValueError(f"svt: method expected 'full' or 'gram' (keep=0), found {method!r}")
     Z, transposed = thin_side(M)
     s, V = gram_svd(Z)
     r = int((s > tau).sum())
