@@ -26,7 +26,7 @@ from torchfill import metrics
 from torchfill.solvers import available, get_solver
 
 ORIGINALS = {"pma": "PMA (Octave)", "gloersen": "Gløersen PCA (Octave)"}
-OURS = ["linear", "pchip", "tucker_tnn", "cp", "pca_gloersen", "pma"]
+OURS = ["linear", "pchip", "tucker_tnn", "pca_gloersen", "glr", "li", "lpr", "lgrnn", "pma"]
 
 
 def score(filled: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict:

@@ -145,10 +145,9 @@ def poly2(X: Tensor) -> Tensor:
 
 
 def lstsq(A: Tensor, y: Tensor) -> Tensor:
-    """Least squares with a tiny ridge (stable where predictors are collinear)."""
-    G = A.T @ A
-    G = G + 1e-9 * G.diagonal().mean().clamp(min=1e-300) * torch.eye(G.shape[0], dtype=A.dtype, device=A.device)
-    return torch.linalg.solve(G, A.T @ y)
+    """Minimum-norm least squares through the SVD (collinear predictors are the rule here:
+    markers of one segment are affine combinations of each other)."""
+    return torch.linalg.pinv(A, rtol=1e-10) @ y
 
 
 def grnn(Xtr: Tensor, Ytr: Tensor, X: Tensor, spread: float) -> Tensor:
@@ -302,8 +301,9 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
 
 
 def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smooth: float,
-              wpca: dict, space: bool, filtering: bool) -> Tensor:
-    """The Tits et al. pipeline on ``P`` (T, J, 3; NaN where ``missing``) with ``models``."""
+              wpca: dict, space: bool) -> Tensor:
+    """The Tits et al. pipeline on ``P`` (T, J, 3; NaN where ``missing``) with ``models``;
+    ``window`` < 4 frames: no filtering anywhere."""
     T, J, _ = P.shape
     c = body_centre(P, missing)
     Y = P - c[:, None]
@@ -352,8 +352,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     rest = miss.unsqueeze(-1).expand_as(Y).reshape(T, -1)
     Y = ops.interp_linear(torch.nan_to_num(Y).reshape(T, -1), ~rest).reshape(T, J, 3)
     out = Y + c[:, None]
-    if filtering:
-        out = symfilter(out.reshape(T, -1), window).reshape(T, J, 3)
+    out = symfilter(out.reshape(T, -1), window).reshape(T, J, 3)
     return torch.where(missing[..., None], out, P)
 
 
@@ -378,8 +377,8 @@ class _Tits(Solver):
         P = torch.where(missing[..., None], torch.full((), float("nan"), dtype=self.M_.dtype,
                                                        device=self.M_.device), self.M_)
         wpca = dict(weight_scale=0.28, mm_weight=0.02, distal_threshold=0.5, min_cum_sv=0.99)
-        self.X_ = tits_fill(P, missing, set(self.models), window=self.window, smooth=self.smooth,
-                            wpca=wpca, space=self.space_constraint, filtering=self.filtering)
+        self.X_ = tits_fill(P, missing, set(self.models), window=self.window if self.filtering else 1,
+                            smooth=self.smooth, wpca=wpca, space=self.space_constraint)
         return {"delta": 0.0}
 
     def _estimate(self) -> Tensor:
