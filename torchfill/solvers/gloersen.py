@@ -56,10 +56,11 @@ def mean_distances(P: Tensor, rows: Tensor, max_frames: int = 500) -> Tensor:
     return torch.where(ok, D, torch.zeros_like(D)).sum(0) / ok.sum(0).clamp(min=1)
 
 
-def _pca(N: Tensor) -> tuple[Tensor, Tensor]:
-    """Principal vectors (columns) and singular values of ``N / sqrt(n-1)``, descending."""
-    _, s, Vh = torch.linalg.svd(N / max(N.shape[0] - 1, 1) ** 0.5, full_matrices=False)
-    return Vh.T, s
+def _pca(G: Tensor, n: int) -> tuple[Tensor, Tensor]:
+    """Principal vectors (columns) and singular values of ``N / sqrt(n-1)``, descending, from the
+    Gram matrix ``G = N.T @ N`` (3J x 3J: far cheaper than an SVD of the n x 3J data)."""
+    lam, V = torch.linalg.eigh((G + G.T) / (2 * max(n - 1, 1)))
+    return V.flip(-1), lam.flip(-1).clamp(min=0).sqrt()
 
 
 def _n_eig(s: Tensor, min_cum_sv: float) -> int:
@@ -72,16 +73,19 @@ def reconstruct(N: Tensor, Mz: Tensor, cols: Tensor, w: Tensor, min_cum_sv: floa
     """Federolf (2013) Eq. 1 on one marker: training frames ``N`` (n x 3J, complete), gap frames
     ``Mz`` (m x 3J, the marker's columns ``cols`` zeroed), column weights ``w`` (3J). Returns the
     marker's columns (m x 3) reconstructed."""
-    N0 = N.clone()
-    N0[:, cols] = 0
-    mean_N, mean_N0 = N.mean(0), N0.mean(0)
+    mean_N = N.mean(0)
+    mean_N0 = mean_N.clone()                             # of the data with the marker zeroed
+    mean_N0[cols] = 0
     std = N.std(0, unbiased=False)
     std = torch.where(std > 0, std, torch.ones_like(std))
     Nn = (N - mean_N) / std * w
-    N0n = (N0 - mean_N0) / std * w
     Mn = (Mz - mean_N0) / std * w
-    Vn, sn = _pca(Nn)
-    V0, s0 = _pca(N0n)
+    G = Nn.T @ Nn
+    G0 = G.clone()                                       # N0n = Nn with the marker's columns 0
+    G0[cols] = 0
+    G0[:, cols] = 0
+    Vn, sn = _pca(G, N.shape[0])
+    V0, s0 = _pca(G0, N.shape[0])
     k = max(_n_eig(sn, min_cum_sv), _n_eig(s0, min_cum_sv))
     Vn, V0 = Vn[:, :k], V0[:, :k]
     R = Mn @ V0 @ (Vn.T @ V0) @ Vn.T                     # Federolf 2013, Eq. 1

@@ -72,11 +72,12 @@ def symfilter(X: Tensor, window: int) -> Tensor:
     for reduce in ("median", "mean"):
         P = torch.nn.functional.pad(out.T[None], (half, half), value=float("nan"))[0].T
         W = P.unfold(0, 2 * half + 1, 1)                                  # (T, C, window)
-        res = out.clone()
-        for r in range(2, half + 1):
-            Wr = W[..., half - r:half + r + 1]
-            val = Wr.median(dim=-1).values if reduce == "median" else Wr.mean(dim=-1)
-            res = torch.where(h == r, val, res)
+        res = torch.where(h == half, W.median(-1).values if reduce == "median" else W.mean(-1), out)
+        for r in range(2, half):                                          # shrunk windows
+            t_r, c_r = torch.nonzero(h == r, as_tuple=True)
+            if t_r.numel():
+                Wr = W[t_r, c_r, half - r:half + r + 1]
+                res[t_r, c_r] = Wr.median(-1).values if reduce == "median" else Wr.mean(-1)
         out = res
     return out
 
@@ -171,7 +172,7 @@ def space_constraint(P: Tensor, refs: list[Tensor], ranges: list[tuple[Tensor, T
     return P
 
 
-def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 5000) -> Tensor:
+def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 1000) -> Tensor:
     """Pairwise score (J x J): max distance + 20 x distance standard deviation, over frames where
     both markers are observed (self: inf). Lower = more rigidly linked."""
     rows = stride_rows(torch.arange(Y.shape[0], device=Y.device), max_frames)
@@ -192,9 +193,9 @@ def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 5000) -> Tensor:
 class _Local:
     """One reference triple's local frame and its trained models (LPR, LGRNN) for marker ``k``."""
 
-    def __init__(self, Y: Tensor, k: int, triple: tuple[int, int, int], window: int,
+    def __init__(self, Y: Tensor, k: int, triple: tuple[int, int, int], filtered,
                  smooth: float, models: set[str]):
-        p0, p1, p2, p3 = (symfilter(Y[:, j], window) for j in (k, *triple))
+        p0, p1, p2, p3 = (filtered(j) for j in (k, *triple))
         self.raw = [Y[:, j] for j in triple]
         self.R = local_frame(p1, p2, p3)
         self.p1 = p1
@@ -223,7 +224,7 @@ class _Local:
             dist.append(d)
         self.dist = dist
         self.ranges = [(torch.quantile(d, 0.01), torch.quantile(d, 0.99)) for d in dist]
-        self.samples = [stride_rows(d, 500) for d in dist]
+        self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
 
     def _edges(self, a: int, b: int):
         T = self.p0p.shape[0]
@@ -314,8 +315,17 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     presence = (~missing).sum(0)
     gapped = [k for k in torch.argsort(presence, descending=True, stable=True).tolist()
               if bool(missing[:, k].any()) and bool((~missing[:, k]).any())]
+    cache: dict[int, Tensor] = {}
+
+    def filtered(j: int) -> Tensor:
+        """Marker ``j`` filtered along time (recomputed once it has been filled)."""
+        if j not in cache:
+            cache[j] = symfilter(Y[:, j], window)
+        return cache[j]
+
     for k in gapped:
         order = torch.argsort(score[k]).tolist()
+        filtered(k)                                      # as it was before its gaps are filled
         glr_cache, local_cache = {}, {}
         for _, a, b in _runs(missing[:, k:k + 1]):
             lo, hi = max(a - 1, 0), min(b + 1, T)
@@ -326,7 +336,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
             if len(valid) >= 3 and models & {"li", "lpr", "lgrnn"}:
                 triple = tuple(valid[:3])
                 if triple not in local_cache:
-                    local_cache[triple] = _Local(Y, k, triple, window, smooth, models)
+                    local_cache[triple] = _Local(Y, k, triple, filtered, smooth, models)
                 local = local_cache[triple]
                 if local.ok:
                     preds += [local.predict(m, a, b) for m in ("li", "lpr", "lgrnn") if m in models]
@@ -349,6 +359,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
                 continue
             Y[a:b, k] = fill
             miss[a:b, k] = False
+        cache.pop(k, None)
     rest = miss.unsqueeze(-1).expand_as(Y).reshape(T, -1)
     Y = ops.interp_linear(torch.nan_to_num(Y).reshape(T, -1), ~rest).reshape(T, J, 3)
     out = Y + c[:, None]
