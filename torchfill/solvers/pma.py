@@ -147,7 +147,8 @@ def poly2(X: Tensor) -> Tensor:
 
 def lstsq(A: Tensor, y: Tensor) -> Tensor:
     """Minimum-norm least squares through the SVD (collinear predictors are the rule here:
-    markers of one segment are affine combinations of each other)."""
+    markers of one segment are affine combinations of each other; the Gram matrix loses too much
+    precision for an exact fit)."""
     return torch.linalg.pinv(A, rtol=1e-10) @ y
 
 
@@ -289,16 +290,13 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
     densities, smoothed along the gap; then the weighted mean."""
     if len(preds) == 1:
         return preds[0]
-    L = b - a
-    num, den = 0.0, 0.0
-    for P in preds:
-        P = symfilter(P, window)
-        w = torch.ones(L, dtype=P.dtype, device=P.device)
-        for Q, s in zip(local.raw, local.samples):
-            w = w * kde(s, torch.linalg.vector_norm(P - Q[a:b], dim=-1))
-        w = symfilter(w.clamp(min=1e-200)[:, None], min(window, (L + 1) // 2))
-        num, den = num + w * P, den + w
-    return num / den
+    L, m = b - a, len(preds)
+    Ps = symfilter(torch.stack(preds, 1).reshape(L, 3 * m), window).reshape(L, m, 3)
+    w = torch.ones(L, m, dtype=Ps.dtype, device=Ps.device)
+    for Q, s in zip(local.raw, local.samples):
+        w = w * kde(s, torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
+    w = symfilter(w.clamp(min=1e-200), min(window, (L + 1) // 2))
+    return (w[..., None] * Ps).sum(1) / w.sum(1)[:, None]
 
 
 def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smooth: float,
