@@ -3,7 +3,8 @@
 
 HDM05 mm_01-02_03 frames 0-3000 (41 markers), Tucker-paper gaps (20 markers, 100 frames, up to 5
 gaps each, seed 0); a smooth synthetic recording of the same size when the data are absent.
-Median of ``--repeat`` fills per method under ``nice``, one torch thread; linear interpolation in
+Median of ``--repeat`` fills per method under ``nice``, one torch thread, wall and process CPU
+time (CPU time is what load on the shared machine inflates least); linear interpolation in
 the same run as the reference; ``uptime`` printed beside the numbers (the machine is shared).
 
     OMP_NUM_THREADS=1 .venv/bin/python scripts/bench_pma.py [--repeat 3] [--methods ...]
@@ -51,12 +52,14 @@ def main() -> None:
     print(f"data: {source} {X.shape}, {int(mask.sum())} missing samples, torch threads 1")
     print("uptime:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     for method in args.methods:
-        times = []
+        times, cpu = [], []
         for _ in range(args.repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             out = torchfill.fill(gappy, method=method)
             times.append(time.perf_counter() - t0)
-        print(f"{method:14s} median {statistics.median(times):6.2f} s  (runs {', '.join(f'{s:.2f}' for s in times)})"
+            cpu.append(time.process_time() - c0)
+        print(f"{method:14s} median {statistics.median(times):6.2f} s wall, {statistics.median(cpu):6.2f} s CPU"
+              f"  (wall runs {', '.join(f'{s:.2f}' for s in times)})"
               f"  RMSE missing {metrics.rmse_missing(out, X, mask):6.2f} mm", flush=True)
     print("uptime:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
 

@@ -309,7 +309,8 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     Y0 = Y.clone()
     miss = missing.clone()
     W = predict_missing_markers(P, missing, **wpca) - c[:, None] if "wpca" in models else None
-    score = rigidity(Y, missing)
+    local_models = models & {"li", "lpr", "lgrnn"}
+    score = rigidity(Y, missing) if local_models else None
     presence = (~missing).sum(0)
     gapped = [k for k in torch.argsort(presence, descending=True, stable=True).tolist()
               if bool(missing[:, k].any()) and bool((~missing[:, k]).any())]
@@ -322,16 +323,17 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
         return cache[j]
 
     for k in gapped:
-        order = torch.argsort(score[k]).tolist()
-        filtered(k)                                      # as it was before its gaps are filled
+        if local_models:
+            order = torch.argsort(score[k]).tolist()
+            filtered(k)                                  # as it was before its gaps are filled
         glr_cache, local_cache = {}, {}
         for _, a, b in _runs(missing[:, k:k + 1]):
             lo, hi = max(a - 1, 0), min(b + 1, T)
-            valid = [r for r in order if r != k and bool(torch.isfinite(score[k, r]))
-                     and not bool(miss[lo:hi, r].any())]
-            preds = []
-            local = None
-            if len(valid) >= 3 and models & {"li", "lpr", "lgrnn"}:
+            preds, local, valid = [], None, []
+            if local_models:
+                present = (~miss[lo:hi].any(0) & torch.isfinite(score[k])).tolist()
+                valid = [r for r in order if r != k and present[r]]
+            if len(valid) >= 3:
                 triple = tuple(valid[:3])
                 if triple not in local_cache:
                     local_cache[triple] = _Local(Y, k, triple, filtered, smooth, models)
