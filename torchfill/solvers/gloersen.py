@@ -13,7 +13,9 @@ Where the original fails, this one does better:
   when every marker has a gap somewhere. Here the centre is the mean of all markers after linear
   interpolation in time when no marker is complete (the original centre when one is);
 - frames of a gap where no other marker is observed (whole-frame blackouts) carry no spatial
-  information: the original returns the mean pose there; here that gap is linearly interpolated;
+  information: the original returns the mean pose there; here that gap is linearly interpolated,
+  and so is a marker left with fewer than 3 other markers to map from (R2 drops every marker
+  missing during its gaps; on a real recording one reference gave 1 m jumps at a gap edge);
 - distances and weights are relative to the mean distance between markers (unit invariant), not mm.
 
 References
@@ -93,11 +95,13 @@ def reconstruct(N: Tensor, Mz: Tensor, cols: Tensor, w: Tensor, min_cum_sv: floa
 
 
 def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, mm_weight: float,
-                            distal_threshold: float, min_cum_sv: float) -> Tensor:
+                            distal_threshold: float, min_cum_sv: float, min_markers: int = 3) -> Tensor:
     """R2 strategy on ``P`` (T, J, 3), ``missing`` (T, J): every gap filled; observed kept.
 
     ``weight_scale`` is relative to the mean distance between markers (the original's 200 mm
-    over the ~700 mm of a full-body set is 0.28)."""
+    over the ~700 mm of a full-body set is 0.28). A marker whose gaps leave fewer than
+    ``min_markers`` other markers to reconstruct from (the original maps from as few as one, and
+    jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead."""
     T, J, _ = P.shape
     out = P.clone()
     gapped = torch.nonzero(missing.any(0)).flatten()
@@ -117,8 +121,8 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
         others = ~drop
         others[i] = False
         train = ~missing[:, ~drop].any(1)
-        if int(train.sum()) < 2 or not bool(others.any()):
-            out[frames, i] = lin[frames, i] + c[frames]                    # no spatial information
+        if int(train.sum()) < 2 or int(others.sum()) < min_markers:
+            out[frames, i] = lin[frames, i] + c[frames]                    # too little to go on
             continue
         Z = torch.where(drop[None, :, None], torch.zeros((), dtype=P.dtype), Y).reshape(T, -1)
         Z = torch.where(torch.isfinite(Z), Z, torch.zeros((), dtype=P.dtype))
