@@ -94,7 +94,8 @@ def _cmd_evaluate(args) -> int:
     rows = []
     for method in dict.fromkeys(methods):
         params = _parse_params(args.param) if len(methods) == 1 else {}
-        filled = torchfill.fill(incomplete, method, progress=_progress(args), **params)
+        filled = torchfill.fill(incomplete, method, progress=_progress(args), extrapolate=None,
+                                **params)  # scored everywhere: no extrapolation limit
         _clear_progress(args)
         info = filled.meta["fill_info"]
         rows.append({"method": method, **metrics.score(filled.points, truth.points, mask),
