@@ -14,13 +14,15 @@ changes. The post-step below takes the method's fill and, in this order:
 4. **continuity at gap edges**: the fill is offset so that its first and last samples continue
    the observed trajectory in position and velocity (``x[a-1] + v``), the offset blended linearly
    across the gap (one-sided gaps are shifted);
-5. **soft rigid distances**: a filled sample with one or two rigid partners is moved towards
-   their observed distances, ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
+5. **soft rigid distances**: a filled sample whose distance to a rigid partner strays more than
+   ``SOFT_BAND`` times the pair's observed spread is moved back towards that band, ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
    based projection, as MocapRecovery's skeleton constraint keeps neighbour distances);
 6. **no teleports**: inside each gap, one-frame steps longer than the recording's 99.9th
    percentile observed step are shortened, the gap's end mismatch spread over all its steps
    (repeated; linear interpolation if that cannot meet the limit);
-7. **capture volume**: filled samples are clamped into the per-axis range of the observed ones.
+7. **capture volume**: filled samples are clamped into the per-axis range of the observed ones,
+   widened by ``VOLUME_MARGIN`` of that range (a short trial's observed range is not the whole
+   volume: a marker missing at the start may lie behind every observed sample).
 
 Observed samples are never changed.
 """
@@ -32,13 +34,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .metrics import gap_runs, observed_steps
+from .metrics import gap_runs, observed_steps, volume
 from .solvers.rigid import RigidPairs, rigid_fill, rigid_pairs
 
 #: Weight of one soft-distance projection step (0 = off, 1 = full projection each iteration).
 SOFT_WEIGHT = 0.5
+#: A rigid pair's distance may stray this many times its observed spread before it is corrected.
+SOFT_BAND = 3.0
 #: Jacobi iterations of the soft-distance projection.
 SOFT_ITER = 10
+#: Share of the observed per-axis range a fill may lie outside it.
+VOLUME_MARGIN = 0.1
 #: Percentile of the observed one-frame steps a fill's step may not exceed.
 STEP_PERCENTILE = 99.9
 
@@ -176,15 +182,17 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     if j.size == 0:
         return
     d0 = pairs.distance.cpu().numpy()[j, k]
+    band = SOFT_BAND * pairs.spread.cpu().numpy()[j, k]
     for _ in range(SOFT_ITER):
         diff = F[:, j] - F[:, k]                                           # (T, P, 3)
         n = np.linalg.norm(diff, axis=2)
-        use = (free[:, j] | free[:, k]) & np.isfinite(n) & (n > 0)
+        err = np.clip(n - d0, -band, band) - (n - d0)      # back inside the observed band
+        use = (free[:, j] | free[:, k]) & np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():
             return
         share_j = np.where(free[:, k], 0.5, 1.0) * free[:, j] * use
         share_k = np.where(free[:, j], 0.5, 1.0) * free[:, k] * use
-        step = SOFT_WEIGHT * np.where(use, (d0 - n) / np.where(n > 0, n, 1), 0)[..., None] * diff
+        step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[..., None] * diff
         C = np.zeros_like(F)
         count = np.zeros(F.shape[:2])
         np.add.at(C.transpose(1, 0, 2), j, (share_j[..., None] * step).transpose(1, 0, 2))
@@ -232,8 +240,7 @@ def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> n
 
 
 def _clamp_to_volume(F, observed, missing, report) -> None:
-    lo = np.nanmin(np.where(observed[..., None], F, np.nan), axis=(0, 1))
-    hi = np.nanmax(np.where(observed[..., None], F, np.nan), axis=(0, 1))
+    lo, hi = volume(F, observed, VOLUME_MARGIN)
     sel = missing & np.isfinite(F).all(axis=2)
     clamped = np.clip(F[sel], lo, hi)
     report.clamped = int((clamped != F[sel]).any(axis=1).sum())

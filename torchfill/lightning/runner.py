@@ -52,10 +52,12 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
         rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
         mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
         params = _training_params(cfg, case, rec.labels, get_solver, align_training)
+        constrained = bool(params.pop("constraints", False))   # fill()'s post-step, scored
         solver = get_solver(case.method.solver, **params)
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
-        evaluation = Evaluation(every=1 if showcase else 0)
+        evaluation = Evaluation(every=1 if showcase else 0,
+                                post=_constrained_fill if constrained else None)
         stop = Convergence()
         callbacks = [stop, HistoryLogger(), evaluation]
         logger = False
@@ -83,6 +85,13 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
                    + " ".join(str(err).split())[:300])
     row["wall_s"] = round(time.perf_counter() - start, 4)
     return row
+
+
+def _constrained_fill(filled, mask):
+    """The solver's fill through ``fill()``'s constraints (method param ``constraints: true``)."""
+    from ..constraints import constrain
+
+    return constrain(filled, mask)[0]
 
 
 def _training_params(cfg: Config, case: Case, labels, get_solver, align_training) -> dict:
@@ -189,7 +198,8 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
             print(f"{cfg.name}: method {m.label!r} ({m.solver}) is not registered; skipped", flush=True)
             continue
         try:
-            get_solver(m.solver, **{k: v for k, v in m.params.items() if k != "training"})
+            get_solver(m.solver, **{k: v for k, v in m.params.items()
+                                    if k not in ("training", "constraints")})
             names = m.params.get("training") or []
             for name in [names] if isinstance(names, str) else names:
                 if not isinstance(name, str) or not cfg.recording_path(name).is_file():

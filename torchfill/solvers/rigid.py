@@ -20,7 +20,9 @@ more, not duplicates of one another): the nearest frames before and after ``t`` 
 those partners were all observed are the references; the least-squares rotation and translation
 taking the partners from a reference frame to frame ``t`` (Kabsch 1976) carries ``j`` along, and the
 two estimates are blended linearly in time. At a trial end only one reference exists, and the fill
-extrapolates correctly with the segment. With fewer than three partners a sample is left to other
+extrapolates correctly with the segment. A partner set is used only if it passes a hold-out on
+observed frames: carrying the observed marker over the same number of frames as the fill reaches
+(median distance to its reference) must have an RMS error <= ``tol * scale`` (about 3 mm). With fewer than three partners a sample is left to other
 methods (the ``rigid`` method falls back on PCHIP for them; ``fill()``'s constraints keep the
 distances to one or two partners softly, see :mod:`torchfill.constraints`).
 
@@ -51,6 +53,7 @@ class RigidPairs:
     rigid: Tensor       # bool: spread <= tol * scale (diagonal False)
     duplicate: Tensor   # bool: one marker stored twice (distance <= tol * scale)
     scale: float        # median pairwise distance: the body's size
+    tol: float = 0.005  # the rigidity tolerance, relative to ``scale``
 
     def partners(self, j: int, max_partners: int = 6) -> list[int]:
         """The largest clique of markers rigid with ``j`` and with one another, most rigid first
@@ -101,7 +104,7 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
     scale = float(torch.median(med[finite])) if bool(finite.any()) else 1.0
     duplicate = finite & (med <= tol * scale)
     rigid = finite & (mad <= tol * scale)
-    return RigidPairs(med, mad, rigid, duplicate, scale)
+    return RigidPairs(med, mad, rigid, duplicate, scale, tol)
 
 
 def kabsch(P: Tensor, Q: Tensor) -> tuple[Tensor, Tensor]:
@@ -127,9 +130,25 @@ def _carry(X: Tensor, j: int, S: list[int], ref: np.ndarray, frames: np.ndarray)
     return (X[ref, j][:, None] @ R.transpose(1, 2))[:, 0] + t
 
 
-def _fill_pattern(X: Tensor, seen: np.ndarray, j: int, S: list[int],
-                  frames: np.ndarray) -> Tensor | None:
-    """Rigid estimates of marker ``j`` at ``frames`` from partners ``S`` (all seen there)."""
+def _holdout_error(X: Tensor, j: int, S: list[int], refs: np.ndarray, reach: int) -> float:
+    """RMS error of carrying observed ``j`` over ``reach`` frames between reference frames: the
+    rigid fill's error at that distance, measured on observed samples only."""
+    if refs.size < 2:
+        return np.inf
+    later = np.searchsorted(refs, refs + max(reach, 1))
+    ok = later < refs.size
+    if not ok.any():
+        return np.inf
+    src, dst = refs[ok], refs[later[ok]]
+    err = _carry(X, j, S, src, dst) - X[dst, j]
+    return float(torch.sqrt((err ** 2).sum(dim=1).mean()))
+
+
+def _fill_pattern(X: Tensor, seen: np.ndarray, j: int, S: list[int], frames: np.ndarray,
+                  max_error: float = np.inf) -> Tensor | None:
+    """Rigid estimates of marker ``j`` at ``frames`` from partners ``S`` (all seen there); None
+    when no reference frame exists or the hold-out error at the fill's reach exceeds
+    ``max_error``."""
     refs = np.flatnonzero(seen[:, j] & seen[:, S].all(axis=1))
     if refs.size == 0:
         return None
@@ -139,6 +158,9 @@ def _fill_pattern(X: Tensor, seen: np.ndarray, j: int, S: list[int],
     has_b, has_a = pos > 0, pos < refs.size
     before = np.where(has_b, before, after)
     after = np.where(has_a, after, before)
+    reach = int(np.median(np.minimum(np.abs(frames - before), np.abs(after - frames))))
+    if np.isfinite(max_error) and _holdout_error(X, j, S, refs, reach) > max_error:
+        return None
     est_b, est_a = _carry(X, j, S, before, frames), _carry(X, j, S, after, frames)
     span = np.maximum(after - before, 1)
     w = torch.as_tensor(np.where(after > before, (frames - before) / span, 0.0),
@@ -164,7 +186,8 @@ def rigid_fill(X: Tensor, observed: Tensor | None = None, pairs: RigidPairs | No
     dup = pairs.duplicate.cpu().numpy()
     for j in np.flatnonzero((~seen).any(axis=0) & seen.any(axis=0)):
         _fill_duplicates(out, done, X, seen, j, np.flatnonzero(dup[j]))
-        _fill_marker(out, done, X, seen, j, pairs.partners(int(j)), min_partners)
+        _fill_marker(out, done, X, seen, j, pairs.partners(int(j)), min_partners,
+                     pairs.tol * pairs.scale)
     return out, done
 
 
@@ -180,7 +203,7 @@ def _fill_duplicates(out, done, X, seen, j, twins) -> None:
         done[todo, j] = True
 
 
-def _fill_marker(out, done, X, seen, j, partners, min_partners) -> None:
+def _fill_marker(out, done, X, seen, j, partners, min_partners, max_error) -> None:
     """Kabsch fill of marker ``j`` where at least ``min_partners`` of its partners are seen."""
     if len(partners) < min_partners:
         return
@@ -193,7 +216,7 @@ def _fill_marker(out, done, X, seen, j, partners, min_partners) -> None:
         frames = frames_all[codes == code]
         S = [p for i, p in enumerate(partners) if code >> i & 1]
         while len(S) >= min_partners:
-            est = _fill_pattern(X, seen, int(j), S, frames)
+            est = _fill_pattern(X, seen, int(j), S, frames, max_error)
             if est is not None:
                 out[frames, j] = est.to(out.dtype)
                 done[frames, j] = True
