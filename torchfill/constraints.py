@@ -65,10 +65,11 @@ class ConstraintReport:
     clamped: int = 0
     rigid_done: np.ndarray | None = None                    # (T, J) filled by rigid donors
     step_limit: float = float("inf")
+    long_gaps: list = field(default_factory=list)            # long gaps without rigid donors
 
 
-def constrain(filled, missing, *, extrapolate: int | None = None, names=None,
-              pairs: RigidPairs | None = None) -> tuple[np.ndarray, ConstraintReport]:
+def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
+              names=None, pairs: RigidPairs | None = None) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
     Parameters
@@ -79,6 +80,8 @@ def constrain(filled, missing, *, extrapolate: int | None = None, names=None,
         The samples that were missing (True) and may be changed.
     extrapolate : int, optional
         Frames a gap touching a trial end may be extrapolated without rigid donors (None: no limit).
+    long : int, optional
+        Gaps longer than this many frames filled without rigid donors get a warning.
     names : list of str, optional
         Marker names for the warnings.
     pairs : RigidPairs, optional
@@ -97,6 +100,9 @@ def constrain(filled, missing, *, extrapolate: int | None = None, names=None,
     F[done] = R.numpy()[done]
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
+    if long is not None:
+        report.long_gaps = [(j, a, b) for j, a, b in gap_runs(free) if b - a > long
+                            and observed[:, j].any()]
     _limit_extrapolation(F, free, extrapolate, report)
     _interpolate_blackouts(F, observed, free, report)
     free &= np.isfinite(F).all(axis=2)
@@ -258,6 +264,11 @@ def _warn(report: ConstraintReport, names) -> None:
         if report.unfilled_extrapolation:
             text += f"; {report.unfilled_extrapolation} samples beyond the extrapolation limit left NaN"
         warnings.warn(text, RiskyFillWarning, stacklevel=3)
+    if report.long_gaps:
+        marks = sorted({label(j) for j, _, _ in report.long_gaps})
+        warnings.warn(f"{len(report.long_gaps)} long gap(s) filled without rigid donors (markers: "
+                      f"{', '.join(marks[:8])}{' ...' if len(marks) > 8 else ''}): check them "
+                      "(torchfill qc)", RiskyFillWarning, stacklevel=3)
     if report.blackout_frames:
         warnings.warn(f"{report.blackout_frames} frame(s) with no marker observed: interpolated in "
                       "time from the fill around them, not reconstructed", RiskyFillWarning,

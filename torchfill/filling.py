@@ -14,6 +14,9 @@ from .metrics import gap_runs
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
 
+#: Gaps longer than this (seconds) filled without rigid donors are named in a warning.
+LONG_GAP_SECONDS = 10.0
+
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
 DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
 
@@ -117,7 +120,7 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
     frames = None if extrapolate is None or not rate else int(round(extrapolate * rate))
     names = data.labels if isinstance(data, MarkerSequence) else None
     F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
-                          names=names)
+                          long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names)
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
 
