@@ -86,7 +86,8 @@ def main() -> None:
             out, seconds = run(seq, method)
             row = {**plausibility(seq, out), "seconds": seconds}
             print(f"{name[:44]:<44} {method:<11}" + "".join(
-                f"{row[c]:>10.3g}" if isinstance(row[c], float) else f"{row[c]:>10d}" for c in cols),
+                f"{row[c]:>10.3g}" if isinstance(row[c], float) else f"{row[c]:>10d}"
+                for c in cols),
                 flush=True)
     clean = torchfill.read(DATA / "ktk_tennis_serve.c3d")
     gappy = torchfill.read(DATA / "ktk_tennis_serve_nan.c3d")

@@ -1,4 +1,5 @@
-"""Command line: ``torchfill fill | qc | evaluate | info | methods | experiment`` (also ``python -m torchfill``).
+"""Command line: ``torchfill fill | qc | evaluate | info | methods | experiment``
+(also ``python -m torchfill``).
 
 Every failure on bad input prints one line, ``torchfill: error: <file>: <problem>``, and exits
 with status 2; nothing is written unless the whole fill succeeded.

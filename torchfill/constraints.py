@@ -15,7 +15,8 @@ changes. The post-step below takes the method's fill and, in this order:
    the observed trajectory in position and velocity (``x[a-1] + v``), the offset blended linearly
    across the gap (one-sided gaps are shifted);
 5. **soft rigid distances**: a filled sample whose distance to a rigid partner strays more than
-   ``SOFT_BAND`` times the pair's observed spread is moved back towards that band, ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
+   ``SOFT_BAND`` times the pair's observed spread is moved back towards that band,
+   ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
    based projection, as MocapRecovery's skeleton constraint keeps neighbour distances);
 6. **no teleports**: inside each gap, one-frame steps longer than 1.5 x the recording's 99.9th
    percentile observed step are shortened, the gap's end mismatch spread over all its steps
