@@ -1,4 +1,5 @@
-"""Command line: ``torchfill fill | evaluate | info | methods | experiment`` (also ``python -m torchfill``).
+"""Command line: ``torchfill fill | qc | evaluate | info | methods | experiment``
+(also ``python -m torchfill``).
 
 Every failure on bad input prints one line, ``torchfill: error: <file>: <problem>``, and exits
 with status 2; nothing is written unless the whole fill succeeded.
@@ -89,14 +90,42 @@ def _cmd_fill(args) -> int:
     _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
     with _naming(args.input):
         filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                **params)
+                                constraints=args.constraints, **params)
     _clear_progress(args)
     torchfill.write(filled, out_path)
+    if args.report:
+        _write_report(seq, filled, Path(args.report), str(args.input))
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
                f"({info['n_iter']} iterations); {left} left unfilled -> {out_path}")
     return 0
+
+
+def _cmd_qc(args) -> int:
+    import torchfill
+    from torchfill import qc
+
+    seq, filled = torchfill.read(args.input), torchfill.read(args.filled)
+    if filled.points.shape != seq.points.shape:
+        raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
+                         f"{args.input}'s {seq.points.shape}")
+    rows = qc.gap_table(seq.points, filled.points, seq.rate, seq.labels)
+    print(qc.format_table(rows, seq.units))
+    report = Path(args.output) if args.output else Path(args.filled).with_suffix(".qc.html")
+    _write_report(seq, filled, report, str(args.filled), rows)
+    n_check = sum(r["verdict"] != "ok" for r in rows)
+    _say(args, f"{len(rows)} gaps, {n_check} to check -> {report}")
+    return 0
+
+
+def _write_report(seq, filled, path: Path, title: str, rows=None) -> None:
+    from torchfill import qc
+
+    rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
+                                                      seq.labels)
+    path.write_text(qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
+                                   units=seq.units, names=seq.labels), encoding="utf-8")
 
 
 def _cmd_evaluate(args) -> int:
@@ -124,8 +153,9 @@ def _cmd_evaluate(args) -> int:
     rows = []
     for method in dict.fromkeys(methods):
         params = _parse_params(args.param) if len(methods) == 1 else {}
-        with _naming(args.input):
-            filled = torchfill.fill(incomplete, method, progress=_progress(args), **params)
+        with _naming(args.input):   # scored everywhere: no extrapolation limit
+            filled = torchfill.fill(incomplete, method, progress=_progress(args),
+                                    extrapolate=None, **params)
         _clear_progress(args)
         info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
@@ -165,8 +195,8 @@ def _cmd_info(args) -> int:
               f"{', '.join(seq.labels[j] for j in range(seq.n_markers) if never[j])}")
     dups = seq.duplicates()
     if dups:
-        print(f"  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
-                                                  for label, idx in dups.items()))
+        print("  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
+                                                 for label, idx in dups.items()))
     width = max((len(label) for label in seq.labels), default=6)
     print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
     for j, label in enumerate(seq.labels):
@@ -305,8 +335,23 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
+    p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill")
+    p.add_argument("--no-constraints", dest="constraints", action="store_false",
+                   help="the method's own fill, as in its paper (no rigid donors, edge blending, "
+                        "step limit, volume clamp or extrapolation limit)")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(run=_cmd_fill)
+
+    p = sub.add_parser("qc", help="which filled gaps to trust: a per-gap report (text + HTML)",
+                       description="Judge the fill FILLED of IN gap by gap (interpolated or "
+                                   "extrapolated, rigid donors, rigid deviation, edge jump, "
+                                   "largest step, outside the volume) and write an HTML report.")
+    p.add_argument("input", metavar="IN")
+    p.add_argument("filled", metavar="FILLED")
+    p.add_argument("-o", "--output", metavar="REPORT.html",
+                   help="HTML report (default: FILLED with suffix .qc.html)")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
                        description="Simulate gaps on the complete markers of IN, fill them with "

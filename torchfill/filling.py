@@ -9,9 +9,13 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from .constraints import constrain
 from .metrics import gap_runs
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
+
+#: Gaps longer than this (seconds) filled without rigid donors are named in a warning.
+LONG_GAP_SECONDS = 10.0
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
 DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
@@ -31,7 +35,8 @@ def default_method() -> str:
 
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         progress: Callable[[dict], None] | None = None, **params):
+         progress: Callable[[dict], None] | None = None, constraints: bool = True,
+         extrapolate: float | None = 0.25, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -46,6 +51,15 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Gaps longer than this many frames are left unfilled (NaN).
     progress : callable, optional
         Called with each iteration's diagnostics (a dict from the solver's ``history_``).
+    constraints : bool
+        Make the fill obey the body (default): rigid donors, continuity at gap edges, no steps
+        beyond the observed motion, samples inside the observed volume, no invented blackout
+        frames (see :mod:`torchfill.constraints`). ``False`` returns the method's own fill, as in
+        its paper.
+    extrapolate : float or None
+        Seconds a gap touching a trial end may be extrapolated without rigid donors (default
+        0.25 s); the rest is left NaN with a warning. Needs the rate of a MarkerSequence: arrays
+        and tensors have no limit. None: no limit. Only with ``constraints``.
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -78,6 +92,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if mask is not None:
         out[mask] = float("nan")
     given = out.clone() if max_gap is not None else None   # the input's own finite coordinates
+    own = torch.isfinite(out)
     unfit = missing | _huge(points, missing)     # what the solver does not see
     never = unfit.all(dim=0)
     if bool(never.any()):
@@ -99,6 +114,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
         out[:, keep] = part
+    if constraints and bool(todo.any()):
+        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate)
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info, missing)
@@ -126,6 +143,17 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
                       f"marker {j}) kept as they are but not used for the fit",
                       UserWarning, stacklevel=3)
     return huge
+
+
+def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate):
+    """The constraints post-step on the fill; coordinates the input had stay bit-for-bit."""
+    rate = data.rate if isinstance(data, MarkerSequence) else None
+    frames = None if extrapolate is None or not rate else int(round(extrapolate * rate))
+    names = data.labels if isinstance(data, MarkerSequence) else None
+    F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
+                          long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names)
+    new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
+    return torch.where(own, out, new), report
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:

@@ -78,3 +78,73 @@ def score(filled, truth, mask) -> dict[str, float]:
     """Every scalar metric above, by name."""
     return {f.__name__: f(filled, truth, mask)
             for f in (rmse, ave, std, rmse_missing, gap_error)}
+
+
+# -- plausibility of a fill on real gaps (no truth needed) -----------------------------------------
+# ``filled`` (T, J, 3) is a fill's output, ``missing`` (T, J) the samples it filled (NaN where a
+# fill left a sample out counts as nothing); ``observed`` = ~missing & finite.
+
+def observed_steps(points, observed) -> np.ndarray:
+    """Lengths of the one-frame steps between two observed samples of one marker."""
+    X = np.asarray(points, dtype=np.float64)
+    observed = np.asarray(observed, dtype=bool)
+    both = observed[1:] & observed[:-1]
+    return np.linalg.norm(X[1:] - X[:-1], axis=2)[both]
+
+
+def step_limit(points, observed, *, q: float = 99.9, factor: float = 1.5) -> float:
+    """``factor`` times the ``q``-th percentile of the observed steps (the teleport threshold)."""
+    steps = observed_steps(points, observed)
+    return float(factor * np.percentile(steps, q)) if steps.size else np.inf
+
+
+def teleports(filled, missing, limit: float) -> int:
+    """Steps longer than ``limit`` that touch a filled sample."""
+    X = np.asarray(filled, dtype=np.float64)
+    missing = np.asarray(missing, dtype=bool)
+    touched = missing[1:] | missing[:-1]
+    steps = np.linalg.norm(X[1:] - X[:-1], axis=2)
+    return int(np.sum(touched & (steps > limit)))
+
+
+def volume(points, observed, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis bounds of the observed samples, widened by ``margin`` times their range."""
+    P = np.asarray(points, dtype=np.float64)[np.asarray(observed, dtype=bool)]
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    return lo - margin * (hi - lo), hi + margin * (hi - lo)
+
+
+def outside_volume(filled, missing, bounds: tuple[np.ndarray, np.ndarray]) -> int:
+    """Filled samples outside ``bounds`` (see :func:`volume`) on any axis."""
+    X = np.asarray(filled, dtype=np.float64)[np.asarray(missing, dtype=bool)]
+    X = X[np.isfinite(X).all(axis=1)]
+    return int(np.sum(((X < bounds[0]) | (X > bounds[1])).any(axis=1)))
+
+
+def rigid_deviation(filled, missing, rigid, reference) -> np.ndarray:
+    """``| |x_j - x_k| - d_jk |`` for every rigid pair (``rigid`` (J, J) bool, ``reference``
+    (J, J) its observed distance) in every frame where either sample was filled."""
+    X = np.asarray(filled, dtype=np.float64)
+    missing = np.asarray(missing, dtype=bool)
+    j, k = np.nonzero(np.triu(np.asarray(rigid, dtype=bool), 1))
+    if j.size == 0:
+        return np.zeros(0)
+    d = np.linalg.norm(X[:, j] - X[:, k], axis=2)
+    dev = np.abs(d - np.asarray(reference)[j, k])
+    use = (missing[:, j] | missing[:, k]) & np.isfinite(dev)
+    return dev[use]
+
+
+def edge_jumps(filled, missing) -> np.ndarray:
+    """Velocity jump at each interior gap edge: ``|v_in - v_out|``, where ``v_out`` is the last
+    observed step before the edge and ``v_in`` the first step into the fill (both sides)."""
+    X = np.asarray(filled, dtype=np.float64)
+    T = X.shape[0]
+    out = []
+    for j, a, b in gap_runs(missing):
+        if a >= 2:
+            out.append(np.linalg.norm((X[a, j] - X[a - 1, j]) - (X[a - 1, j] - X[a - 2, j])))
+        if b + 1 < T:
+            out.append(np.linalg.norm((X[b + 1, j] - X[b, j]) - (X[b, j] - X[b - 1, j])))
+    out = np.asarray(out, dtype=np.float64)
+    return out[np.isfinite(out)]

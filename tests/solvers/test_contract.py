@@ -92,8 +92,8 @@ def fitted(method: str, kind: str):
             solver = make(method)
             return solver, solver.fit_transform(X, torch.from_numpy(MASK), **FIT_DATA.get(method, {}))
         if kind == "fill_ndarray":
-            return None, torchfill.fill(GAPPY.copy(), method=method, **cheap(method),
-                                        **FIT_DATA.get(method, {}))
+            return None, torchfill.fill(GAPPY.copy(), method=method, constraints=False,
+                                        **cheap(method), **FIT_DATA.get(method, {}))
         if kind == "complete":
             solver = make(method)
             return solver, solver.fit_transform(torch.from_numpy(TRUTH), **FIT_DATA.get(method, {}))

@@ -320,7 +320,8 @@ def _methods(value, bad) -> tuple[list[Method], list[str]]:
             skipped.append(method.label)
             continue
         try:
-            get_solver(method.solver, **{k: v for k, v in params.items() if k != "training"})
+            get_solver(method.solver, **{k: v for k, v in params.items()
+                                         if k not in ("training", "constraints")})
         except (TypeError, ValueError) as err:
             raise bad(f"methods.{label}: {' '.join(str(err).split())}") from None
         out.append(method)

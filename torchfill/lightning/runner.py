@@ -54,10 +54,13 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     start = time.perf_counter()
     try:
         rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
-        solver = get_solver(case.method.solver, **_training_params(cfg, case, rec.labels, rest))
+        params = _training_params(cfg, case, rec.labels, rest)
+        constrained = bool(params.pop("constraints", False))   # fill()'s post-step, scored
+        solver = get_solver(case.method.solver, **params)
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
-        evaluation = Evaluation(every=1 if showcase else 0)
+        evaluation = Evaluation(every=1 if showcase else 0,
+                                post=_constrained_fill if constrained else None)
         stop = Convergence()
         accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
         module = fit(solver, dm, callbacks=[stop, HistoryLogger(), evaluation],
@@ -107,6 +110,13 @@ def _loggers(cfg: Config, case: Case, runs_dir: str):
     except ImportError:
         pass
     return logger
+
+
+def _constrained_fill(filled, mask):
+    """The solver's fill through ``fill()``'s constraints (method param ``constraints: true``)."""
+    from ..constraints import constrain
+
+    return constrain(filled, mask)[0]
 
 
 def _training_params(cfg: Config, case: Case, labels, rest) -> dict:

@@ -6,7 +6,7 @@ from .base import NotConvergedWarning, Param, Solver, available, get_solver, reg
 # One module per family; each registers its methods on import. (Modules not written yet are
 # skipped while the families land in parallel; see the issues.)
 for _module in ("interp", "matrix", "pca", "tucker", "cp", "autograd", "completion", "spc",
-                "gloersen", "pma"):
+                "gloersen", "pma", "rigid"):
     try:
         import_module(f"{__name__}.{_module}")
     except ModuleNotFoundError as _err:

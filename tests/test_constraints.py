@@ -1,0 +1,102 @@
+"""The constraints post-step that fill() applies by default: observed samples untouched, no
+teleport on a real gap file, samples inside the observed volume, continuity at gap edges,
+rigid donors used, and constraints=False giving the method's own fill."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+import torchfill
+from torchfill import metrics
+from torchfill.constraints import RiskyFillWarning, constrain
+from torchfill.solvers import get_solver
+
+
+def _walk(T=200, J=6, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / 100.0
+    return 300 * np.sin(2 * np.pi * 0.5 * t + rng.uniform(0, 6, size=(1, J, 3))) + \
+        rng.normal(0, 400, size=(1, J, 3)) + 800 * t
+
+
+def test_teleport_in_a_fill_is_removed_and_edges_kept():
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[50:90, 2] = True
+    F = X.copy()
+    F[70:90, 2] += 900.0                 # a fill that jumps 900 mm in one frame
+    out, report = constrain(F, missing)
+    observed = ~missing
+    assert np.array_equal(out[observed], X[observed])
+    limit = metrics.step_limit(X, observed)
+    assert metrics.teleports(F, missing, limit) >= 1
+    assert metrics.teleports(out, missing, limit) == 0
+    assert report.shortened_gaps == 1
+    assert metrics.outside_volume(out, missing, metrics.volume(X, observed)) == 0
+
+
+def test_edge_blending_makes_the_fill_continue_the_trajectory():
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[60:100, 1] = True
+    F = X.copy()
+    F[60:100, 1] += 40.0                 # an offset fill: a 40 mm jump at both edges
+    before = metrics.edge_jumps(F, missing).max()
+    out, _ = constrain(F, missing)
+    assert metrics.edge_jumps(out, missing).max() < 0.1 * before
+    # the offset is gone: the blended fill is near the truth everywhere in the gap
+    assert np.abs(out[60:100, 1] - X[60:100, 1]).max() < 5.0
+
+
+def test_extrapolation_limit_leaves_the_far_end_unfilled_with_a_warning():
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[150:, 4] = True
+    with pytest.warns(RiskyFillWarning, match="extrapolat"):
+        out, report = constrain(X.copy(), missing, extrapolate=10)
+    assert np.isfinite(out[150:160, 4]).all() and np.isnan(out[160:, 4]).all()
+    assert report.unfilled_extrapolation == 40
+
+
+def test_blackout_frames_are_interpolated_not_invented():
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[100:110] = True              # no marker seen in these frames
+    F = X.copy()
+    F[100:110] = 1e4                     # whatever a method would invent there
+    with pytest.warns(RiskyFillWarning, match="no marker observed"):
+        out, _ = constrain(F, missing)
+    t = np.arange(100, 110)
+    expected = X[99] + (X[110] - X[99]) * ((t - 99) / 11.0)[:, None, None]
+    # interpolated in time (then blended to continue the trajectory at its edges)
+    assert np.abs(out[100:110] - expected).max() < 5.0
+
+
+def test_constraints_false_is_the_methods_own_fill(recording):
+    seq = torchfill.read(recording("c3dorg_s02_pc_real.c3d"))
+    X = torch.from_numpy(seq.points)
+    own = get_solver("pchip").fit_transform(X, torch.from_numpy(seq.mask))
+    out = torchfill.fill(seq, "pchip", constraints=False)
+    assert np.array_equal(out.points, own.numpy(), equal_nan=True)
+
+
+@pytest.mark.parametrize("name", ["c3dorg_s02_pc_real.c3d", "c3dorg_s26_walking_hybrid_1_5.c3d"])
+def test_no_teleport_on_a_real_gap_file(recording, name):
+    """The default fill on real gaps: no step beyond 1.5 x the 99.9th-percentile observed step,
+    nothing outside the observed volume, observed samples bit-for-bit; the method alone teleports
+    on hybrid_1_5 (R_ASIS drops ~360 mm in one frame)."""
+    seq = torchfill.read(recording(name))
+    observed = ~seq.mask
+    limit = metrics.step_limit(seq.points, observed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = torchfill.fill(seq, "tucker_tnn", max_iter=150)
+        raw = torchfill.fill(seq, "tucker_tnn", max_iter=150, constraints=False)
+    assert np.array_equal(out.points[observed], seq.points[observed])
+    assert metrics.teleports(out.points, seq.mask, limit) == 0
+    assert metrics.outside_volume(out.points, seq.mask, metrics.volume(seq.points, observed)) == 0
+    if "hybrid_1_5" in name:
+        assert metrics.teleports(raw.points, seq.mask, limit) > 0
