@@ -127,6 +127,12 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_methods(args) -> int:
+    if not args.verbose:  # names and summaries read from the sources: no torch import
+        from torchfill._catalog import entries
+
+        for name, doc in entries():
+            print(f"{name:<14} {doc}")
+        return 0
     from torchfill.solvers import base
 
     for name in base.available():
