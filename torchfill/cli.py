@@ -54,6 +54,9 @@ def _one_line(err: BaseException) -> str:
 def _cmd_fill(args) -> int:
     import torchfill
 
+    if len(args.input) > 1 or args.out_dir or args.ray:
+        return _cmd_fill_batch(args)
+    args.input = args.input[0]
     seq = torchfill.read(args.input)
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     params = _parse_params(args.param)
@@ -70,6 +73,35 @@ def _cmd_fill(args) -> int:
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
                f"({info['n_iter']} iterations); {left} left unfilled -> {out_path}")
     return 0
+
+
+def _cmd_fill_batch(args) -> int:
+    """Many files: one progress bar, one line per failing file, a summary table at the end."""
+    from tqdm import tqdm
+
+    from torchfill import batch
+
+    if args.output:
+        raise ValueError("-o/--output names one file; give --out-dir DIR for several inputs")
+    if not args.out_dir:
+        raise ValueError("several inputs need --out-dir DIR")
+    inputs = batch.expand(args.input)
+    if not inputs:
+        raise ValueError(f"{' '.join(args.input)}: no recordings found")
+    params = _parse_params(args.param)
+    jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
+            for src, dst in zip(inputs, batch.outputs(inputs, Path(args.out_dir)))]
+    order = {job.input: i for i, job in enumerate(jobs)}
+    rows = []
+    with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar:
+        for row in batch.run(jobs, workers=args.workers, ray_address=args.ray):
+            if row["error"]:
+                bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
+            rows.append(row)
+            bar.update()
+    rows.sort(key=lambda row: order[row["file"]])
+    _say(args, batch.table(rows))
+    return EXIT_ERROR if any(row["error"] for row in rows) else 0
 
 
 def _cmd_evaluate(args) -> int:
@@ -231,8 +263,14 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fill", help="fill the gaps of a recording and write the result",
                        description="Fill the gaps of IN and write OUT; everything else in the file "
                                    "is kept, filled C3D samples get residual 0.")
-    p.add_argument("input", metavar="IN")
+    p.add_argument("input", metavar="IN", nargs="+",
+                   help="recording(s): files, folders or glob patterns (several need --out-dir)")
     p.add_argument("-o", "--output", metavar="OUT", help="output file (default: IN_filled.EXT)")
+    p.add_argument("--out-dir", metavar="DIR", help="write each filled recording here, same name")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="fill N files at once in separate processes (default 1)")
+    p.add_argument("--ray", metavar="ADDRESS", help="distribute the files as Ray tasks: 'auto' "
+                   "(a running cluster), 'local' (start one here) or ray://HOST:PORT")
     p.add_argument("-m", "--method", help="method name (see 'torchfill methods'; default: the best)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="leave longer gaps unfilled")
     p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from .metrics import gap_runs
+from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
 
@@ -31,7 +32,8 @@ def default_method() -> str:
 
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         progress: Callable[[dict], None] | None = None, **params):
+         window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
+         **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -44,6 +46,11 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional
         Gaps longer than this many frames are left unfilled (NaN).
+    window : int or None
+        Recordings longer than this many frames are filled in overlapping windows, blended with a
+        cross-fade (see :mod:`torchfill.windows`: the window grows to 6x the longest gap, the
+        overlap is 2x the longest gap), so time grows linearly with the length and memory is
+        bounded. ``None`` fills the whole recording at once.
     progress : callable, optional
         Called with each iteration's diagnostics (a dict from the solver's ``history_``).
     **params
@@ -60,6 +67,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     method = method or default_method()
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
+    if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 2):
+        raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
     get_solver(method, **{k: v for k, v in params.items() if k != "training"})  # validate early
     points, kind = _as_tensor(data)
     missing = ~torch.isfinite(points).all(dim=2)
@@ -78,23 +87,35 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: {names}",
                       UnfilledWarning, stacklevel=2)
     todo = missing & ~never
-    info = {"method": method, "n_iter": 0, "seconds": 0.0}
+    info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0}
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
         if params.get("training") is not None:
             params["training"] = _align_training(params["training"], data, keep.tolist(),
                                                  points.shape[1])
-        solver = get_solver(method, **params)
         Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
+        plan = windows.plan(missing[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
-        filled = solver.fit(Xk, missing[:, keep], callback=progress).transform(Xk)
-        info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
+        filled = windows.blend(plan, missing[:, keep], lambda a, b: _fill_window(
+            method, params, Xk[a:b], missing[a:b, keep], progress, info))
+        info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
         out[:, keep] = part
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info)
+
+
+def _fill_window(method: str, params: dict, X: torch.Tensor, missing: torch.Tensor,
+                 progress: Callable[[dict], None] | None, info: dict) -> torch.Tensor:
+    """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``); returns its fill
+    and adds its iterations to ``info``. Every per-fill step (constraints, ``auto``) belongs here,
+    so that it runs once per window."""
+    solver = get_solver(method, **params)
+    filled = solver.fit(X, missing, callback=progress).transform(X)
+    info["n_iter"] += solver.n_iter_
+    return filled
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
