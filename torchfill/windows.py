@@ -29,7 +29,7 @@ import torch
 from .metrics import gap_runs
 
 #: Default window length in frames (chosen on accuracy and speed, see the README's "Long recordings").
-WINDOW = 1200
+WINDOW = 6000
 #: Smallest overlap between windows, in frames.
 MIN_OVERLAP = 100
 
