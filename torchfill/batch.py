@@ -9,15 +9,18 @@ yielding each row as its file finishes.
 from __future__ import annotations
 
 import glob
+import multiprocessing
 import os
 import time
 import warnings
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 SUFFIXES = (".c3d", ".trc", ".npy", ".npz", ".csv")
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
 @dataclass(frozen=True)
@@ -98,11 +101,28 @@ def run(jobs: list[Job], workers: int = 1, ray_address: str | None = None) -> It
         yield from _run_ray(jobs, ray_address)
     elif workers <= 1 or len(jobs) <= 1:
         yield from map(fill_file, jobs)
-    else:
-        os.environ.setdefault("OMP_NUM_THREADS", "1")  # one thread per worker process
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-            for done in as_completed([pool.submit(fill_file, job) for job in jobs]):
+    else:  # fresh interpreters (a process using torch must not fork), one thread each
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+            with _one_thread():   # workers start at submit and read the variables then
+                futures = [pool.submit(fill_file, job) for job in jobs]
+            for done in as_completed(futures):
                 yield done.result()
+
+
+@contextmanager
+def _one_thread():
+    """Set the BLAS/OpenMP thread variables to 1 for processes started inside, then restore."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+    os.environ.update({k: "1" for k in _THREAD_VARS})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _run_ray(jobs: list[Job], address: str) -> Iterator[dict]:
