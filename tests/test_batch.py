@@ -2,6 +2,9 @@
 file is reported in one line and the others are still filled; outputs equal one-by-one fills."""
 from __future__ import annotations
 
+import csv
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -70,14 +73,30 @@ def test_several_inputs_need_out_dir(folder, capsys):
     assert code == 2 and "--out-dir" in capsys.readouterr().err
 
 
-def test_ray_outputs_are_byte_identical_to_local(folder, tmp_path):
+def _cases(out):
+    with open(out / "cases.csv", newline="") as handle:
+        return sorted((r["method"], r["rmse"], r["n_iter"]) for r in csv.DictReader(handle))
+
+
+@pytest.mark.slow
+def test_ray_gives_the_local_results(folder, tmp_path, data_dir):
+    """Files as Ray tasks are byte-identical to a local batch; an experiment grid run as Ray tasks
+    gives the local cases' numbers. One local Ray (2 CPUs) started here serves both."""
     ray = pytest.importorskip("ray")
+    smoke = Path(__file__).resolve().parents[1] / "experiments" / "smoke.yaml"
+    if not (data_dir / "hdm05_dg_06-03_03_120.c3d").is_file():
+        pytest.skip("smoke recording absent")
+    from torchfill.lightning import runner
+
     good = sorted(str(p) for p in folder.glob("trial*.npz"))
     assert main(["fill", *good, "--out-dir", str(tmp_path / "local"), "-m", "pchip", "-q"]) == 0
+    local = runner.run_experiment(smoke, output=tmp_path / "exp_local")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         assert main(["fill", *good, "--out-dir", str(tmp_path / "ray"), "-m", "pchip", "-q",
                      "--ray", "auto"]) == 0
+        remote = runner.run_experiment(smoke, output=tmp_path / "exp_ray", ray_address="auto")
     finally:
         ray.shutdown()
     assert _files(tmp_path / "ray") == _files(tmp_path / "local")
+    assert _cases(remote) == _cases(local) and len(_cases(local)) == 2

@@ -126,16 +126,22 @@ def _one_thread():
 
 
 def _run_ray(jobs: list[Job], address: str) -> Iterator[dict]:
+    yield from ray_map(fill_file, [(job,) for job in jobs], address)
+
+
+def ray_map(func, args: list[tuple], address: str, kwargs: list[dict] | None = None) -> Iterator:
+    """``func(*a, **k)`` for every ``a`` (and ``k``) as Ray tasks of one CPU each; yields the
+    results as they finish. Connects to ``address`` (``"local"`` starts a Ray here) unless Ray is
+    already initialized in this process."""
     try:
         import ray
     except ImportError:
         raise ValueError("--ray needs Ray: pip install 'torchfill[ray]'") from None
     started = not ray.is_initialized()
     if started:
-        ray.init(address=None if address == "local" else address, ignore_reinit_error=True,
-                 log_to_driver=False)
-    remote = ray.remote(num_cpus=1)(fill_file)
-    pending = [remote.remote(job) for job in jobs]
+        ray.init(address=None if address == "local" else address, log_to_driver=False)
+    remote = ray.remote(num_cpus=1)(func)
+    pending = [remote.remote(*a, **k) for a, k in zip(args, kwargs or [{}] * len(args))]
     try:
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -161,4 +167,4 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "run", "table"]
+__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "table"]

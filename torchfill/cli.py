@@ -181,7 +181,7 @@ def _cmd_experiment(args) -> int:
     from torchfill.lightning.runner import run_experiment
 
     out = run_experiment(args.config, resume=args.resume, workers=args.workers,
-                         limit=args.limit, output=args.output)
+                         limit=args.limit, output=args.output, ray_address=args.ray)
     print(f"results in {out}")
     return 0
 
@@ -316,6 +316,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
     p.add_argument("--limit", type=int, help="run at most this many cases")
     p.add_argument("--output", help="output folder (default: experiments/results/<name>)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run the cases as Ray tasks: 'auto', 'local' "
+                   "or ray://HOST:PORT (every node needs the recordings at the same path)")
     p.set_defaults(run=_cmd_experiment)
     return parser
 

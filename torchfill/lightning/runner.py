@@ -161,7 +161,7 @@ def _init_worker(threads: int = 1) -> None:
 
 # -- the experiment -------------------------------------------------------------------------------
 def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
-                   output=None) -> Path:
+                   output=None, ray_address: str | None = None) -> Path:
     """Run every case of ``config_path``; returns the output folder.
 
     Parameters
@@ -172,6 +172,8 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     limit : run at most this many cases (the first ones, in config order).
     output : folder for the results (default ``experiments/results/<name>``); per-iteration logs go
         to ``experiments/runs/<name>`` (or ``<output>/runs`` when ``output`` is given).
+    ray_address : run the cases as Ray tasks instead (``"auto"``, ``"local"`` or a cluster address;
+        ``pip install torchfill[ray]``); every node needs the config's recordings at the same path.
     """
     from ..solvers import available, get_solver
 
@@ -239,7 +241,13 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
         args = [(str(cfg.path), c, str(runs_dir)) for c in todo]
         show = [_is_showcase(c, showcase) for c in todo]
         threads = threads_per_case()
-        if workers == 1:
+        if ray_address is not None:
+            from ..batch import ray_map
+
+            for i, row in enumerate(ray_map(run_case, args, ray_address,
+                                            kwargs=[{"showcase": s} for s in show]), 1):
+                record(i, row)
+        elif workers == 1:
             import torch
 
             before = torch.get_num_threads()
