@@ -85,6 +85,8 @@ def _cmd_fill_batch(args) -> int:
         raise ValueError("-o/--output names one file; give --out-dir DIR for several inputs")
     if not args.out_dir:
         raise ValueError("several inputs need --out-dir DIR")
+    if args.workers < 1:
+        raise ValueError(f"--workers expected >= 1, found {args.workers}")
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
