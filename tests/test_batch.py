@@ -79,9 +79,11 @@ def _cases(out):
 
 
 @pytest.mark.slow
-def test_ray_gives_the_local_results(folder, tmp_path, data_dir):
+def test_ray_gives_the_local_results(folder, tmp_path, data_dir, monkeypatch):
     """Files as Ray tasks are byte-identical to a local batch; an experiment grid run as Ray tasks
-    gives the local cases' numbers. One local Ray (2 CPUs) started here serves both."""
+    gives the local cases' numbers. One local Ray (2 CPUs) started here serves both: a new one
+    (``address="local"``), never a cluster that ``RAY_ADDRESS`` or an earlier ``ray start`` on this
+    machine points to (its workers import whichever torchfill their own paths find)."""
     ray = pytest.importorskip("ray")
     smoke = Path(__file__).resolve().parents[1] / "experiments" / "smoke.yaml"
     if not (data_dir / "hdm05_dg_06-03_03_120.c3d").is_file():
@@ -91,7 +93,8 @@ def test_ray_gives_the_local_results(folder, tmp_path, data_dir):
     good = sorted(str(p) for p in folder.glob("trial*.npz"))
     assert main(["fill", *good, "--out-dir", str(tmp_path / "local"), "-m", "pchip", "-q"]) == 0
     local = runner.run_experiment(smoke, output=tmp_path / "exp_local")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         assert main(["fill", *good, "--out-dir", str(tmp_path / "ray"), "-m", "pchip", "-q",
                      "--ray", "auto"]) == 0

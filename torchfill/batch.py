@@ -131,15 +131,16 @@ def _run_ray(jobs: list[Job], address: str) -> Iterator[dict]:
 
 def ray_map(func, args: list[tuple], address: str, kwargs: list[dict] | None = None) -> Iterator:
     """``func(*a, **k)`` for every ``a`` (and ``k``) as Ray tasks of one CPU each; yields the
-    results as they finish. Connects to ``address`` (``"local"`` starts a Ray here) unless Ray is
-    already initialized in this process."""
+    results as they finish. Connects to ``address`` unless Ray is already initialized in this
+    process: ``"local"`` always starts a new Ray here (``ray.init(address=None)`` would instead join
+    a cluster named by ``RAY_ADDRESS`` or left by ``ray start``), ``"auto"`` joins the running one."""
     try:
         import ray
     except ImportError:
         raise ValueError("--ray needs Ray: pip install 'torchfill[ray]'") from None
     started = not ray.is_initialized()
     if started:
-        ray.init(address=None if address == "local" else address, log_to_driver=False)
+        ray.init(address=address, log_to_driver=False)
     remote = ray.remote(num_cpus=1)(func)
     pending = [remote.remote(*a, **k) for a, k in zip(args, kwargs or [{}] * len(args))]
     try:
