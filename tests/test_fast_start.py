@@ -11,10 +11,10 @@ import pytest
 HEAVY = ("torch", "tensorly", "lightning", "pytorch_lightning")
 
 
-def _imported_after(code: str) -> set[str]:
-    """Heavy modules in ``sys.modules`` after running ``code`` in a fresh interpreter."""
+def _imported_after(code: str, heavy: tuple[str, ...] = HEAVY) -> set[str]:
+    """Modules of ``heavy`` in ``sys.modules`` after running ``code`` in a fresh interpreter."""
     probe = (f"import sys\n{code}\n"
-             f"print('HEAVY:' + ','.join(m for m in {HEAVY!r} if m in sys.modules))")
+             f"print('HEAVY:' + ','.join(m for m in {heavy!r} if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     line = out.stdout.strip().splitlines()[-1]
     assert line.startswith("HEAVY:"), out.stdout[-300:]
@@ -35,6 +35,7 @@ def test_cli_starts_without_torch(argv):
     code = ("from torchfill.cli import main\n"
             f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass")
     assert _imported_after(code) == set()
+    assert _imported_after(code, heavy=("numpy",)) == set()     # help and names need no NumPy
 
 
 def test_info_runs_without_torch(small_npz):

@@ -5,22 +5,19 @@
 >>> out = torchfill.fill(seq, method="tucker_tnn")
 >>> torchfill.write(out, "trial_filled.c3d")
 
-Importing the package is cheap: reading, writing and scoring need only NumPy, and the names that
-need torch (``fill``, ``methods`` ...) are imported on first use (PEP 562), so ``torchfill --help``
-and ``torchfill info`` start without torch. Lightning is imported only by the experiment runner.
+Importing the package is cheap: every public name is imported on first use (PEP 562), so
+``torchfill --help`` imports neither NumPy nor torch, and ``torchfill info`` (reading needs only
+NumPy) starts without torch. Lightning is imported only by the experiment runner.
 """
 from importlib import import_module
-
-from .io import FileFormatError, read, write
-from .metrics import score
-from .sequence import MarkerSequence
 
 __version__ = "0.1.0"
 __all__ = ["FileFormatError", "UnfilledWarning", "MarkerSequence", "default_method", "fill", "methods", "read", "score", "write"]
 
-#: Public names whose module imports torch, and that module (imported on first access).
+#: Public names and their modules (imported on first access; ``filling`` imports torch).
 _LAZY = {"fill": "filling", "methods": "filling", "default_method": "filling",
-         "UnfilledWarning": "filling"}
+         "UnfilledWarning": "filling", "FileFormatError": "io", "read": "io", "write": "io",
+         "score": "metrics", "MarkerSequence": "sequence"}
 
 
 def __getattr__(name: str):

@@ -13,8 +13,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 EXIT_ERROR = 2
 
 
@@ -107,6 +105,8 @@ def _cmd_fill_batch(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
+    import numpy as np
+
     import torchfill
     from torchfill import gaps, metrics
 
