@@ -70,3 +70,23 @@ def test_windowed_low_rank_fill_of_a_real_recording(recording):
     whole = metrics.rmse_missing(torchfill.fill(given, "svt", window=None), truth, mask)
     linear = metrics.rmse_missing(torchfill.fill(given, "linear"), truth, mask)
     assert err < 0.5 * linear and err < 1.25 * whole    # mm: measured 7.4 vs 7.2 whole, 20.4 linear
+
+
+def test_cli_window_reaches_fill(tmp_path):
+    from torchfill.cli import main
+
+    X = _long_walk(T=600)
+    mask = gaps.multi_gap(*X.shape[:2], n_markers=4, gap_length=40, max_gaps=3, seed=3)
+    given = np.where(mask[..., None], np.nan, X)
+    src = tmp_path / "walk.npz"
+    np.savez(src, points=given, labels=np.array([f"M{j}" for j in range(X.shape[1])]), rate=120.0,
+             units="mm")
+    for flag, window in (("300", 300), ("0", None)):
+        out = tmp_path / f"out{flag}.npz"
+        assert main(["fill", str(src), "-o", str(out), "-m", "svt", "-p", "max_iter=30", "-q",
+                     "--window", flag]) == 0
+        expected = torchfill.fill(given, "svt", window=window, max_iter=30)
+        assert np.array_equal(np.load(out)["points"], expected)
+    assert not np.array_equal(np.load(tmp_path / "out300.npz")["points"],
+                              np.load(tmp_path / "out0.npz")["points"])   # 3 windows vs 1
+    assert main(["fill", str(src), "-o", str(tmp_path / "x.npz"), "--window", "-5"]) == 2

@@ -57,7 +57,7 @@ def _cmd_fill(args) -> int:
     args.input = args.input[0]
     seq = torchfill.read(args.input)
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
-    params = _parse_params(args.param)
+    params = _parse_params(args.param) | _window(args)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = args.method or torchfill.default_method()
@@ -88,7 +88,7 @@ def _cmd_fill_batch(args) -> int:
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    params = _parse_params(args.param)
+    params = _parse_params(args.param) | _window(args)
     jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
             for src, dst in zip(inputs, batch.outputs(inputs, Path(args.out_dir)))]
     order = {job.input: i for i, job in enumerate(jobs)}
@@ -193,6 +193,15 @@ def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
 
 
+def _window(args) -> dict:
+    """``fill()``'s ``window`` from ``--window`` (0: the whole recording at once; unset: default)."""
+    if args.window is None:
+        return {}
+    if args.window < 0 or args.window == 1:
+        raise ValueError(f"--window expected 0 or a number of frames >= 2, found {args.window}")
+    return {"window": args.window or None}
+
+
 def _parse_params(pairs: list[str]) -> dict:
     params = {}
     for pair in pairs:
@@ -275,6 +284,9 @@ def _parser() -> argparse.ArgumentParser:
                    "(a running cluster), 'local' (start one here) or ray://HOST:PORT")
     p.add_argument("-m", "--method", help="method name (see 'torchfill methods'; default: the best)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="leave longer gaps unfilled")
+    p.add_argument("--window", type=int, metavar="FRAMES",
+                   help="fill longer recordings in overlapping windows of this many frames "
+                        "(default 6000; 0: the whole recording at once)")
     p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200")
