@@ -94,14 +94,19 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
             params["training"] = _align_training(params["training"], data, keep.tolist(),
                                                  points.shape[1])
         Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
+        del points                      # long recordings: hold as few full-length copies as we can
         plan = windows.plan(missing[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
         filled = windows.blend(plan, missing[:, keep], lambda a, b: _fill_window(
             method, params, Xk[a:b], missing[a:b, keep], progress, info))
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
-        part = out[:, keep]
-        part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
-        out[:, keep] = part
+        del Xk
+        whole = len(keep) == out.shape[1]
+        part = out if whole else out[:, keep]
+        write = todo[:, keep, None] & ~torch.isfinite(part)
+        part[write] = filled[write].to(out.dtype)
+        if not whole:
+            out[:, keep] = part
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     return _as_kind(out, kind, data, info)
