@@ -4,6 +4,10 @@
 >>> seq = torchfill.read("trial.c3d")
 >>> out = torchfill.fill(seq, method="tucker_tnn")
 >>> torchfill.write(out, "trial_filled.c3d")
+
+Importing the package is cheap: every public name is imported on first use (PEP 562), so
+``torchfill --help`` imports neither NumPy nor torch, and ``torchfill info`` (reading needs only
+NumPy) starts without torch. Lightning is imported only by the experiment runner.
 """
 from importlib import import_module
 
@@ -21,7 +25,7 @@ _HOMES = {"fill": ".filling", "methods": ".filling", "default_method": ".filling
 
 
 _SUBMODULES = {"cli", "data", "filling", "gaps", "io", "lightning", "metrics", "ops", "sequence",
-               "solvers", "constraints", "qc", "rigid"}
+               "solvers", "constraints", "qc", "rigid", "windows", "batch"}
 
 
 def __getattr__(name: str):

@@ -79,10 +79,13 @@ def _one_line(err: BaseException) -> str:
 def _cmd_fill(args) -> int:
     import torchfill
 
+    if len(args.input) > 1 or args.out_dir or args.ray:
+        return _cmd_fill_batch(args)
+    args.input = args.input[0]
     seq = torchfill.read(args.input)
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     torchfill.io.check_target(out_path)                 # refuse now, not after the fill
-    params = _parse_params(args.param)
+    params = _parse_params(args.param) | _window(args)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = torchfill.default_method() if args.method is None else args.method
@@ -126,6 +129,39 @@ def _write_report(seq, filled, path: Path, title: str, rows=None) -> None:
                                                       seq.labels)
     path.write_text(qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
                                    units=seq.units, names=seq.labels), encoding="utf-8")
+
+
+def _cmd_fill_batch(args) -> int:
+    """Many files: one progress bar, one line per failing file, a summary table at the end."""
+    from tqdm import tqdm
+
+    from torchfill import batch
+
+    if args.output:
+        raise ValueError("-o/--output names one file; give --out-dir DIR for several inputs")
+    if not args.out_dir:
+        raise ValueError("several inputs need --out-dir DIR")
+    if args.workers < 1:
+        raise ValueError(f"--workers expected >= 1, found {args.workers}")
+    inputs = batch.expand(args.input)
+    if not inputs:
+        raise ValueError(f"{' '.join(args.input)}: no recordings found")
+    params = _parse_params(args.param) | _window(args)
+    if not args.constraints:
+        params["constraints"] = False
+    jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
+            for src, dst in zip(inputs, batch.outputs(inputs, Path(args.out_dir)))]
+    order = {job.input: i for i, job in enumerate(jobs)}
+    rows = []
+    with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar:
+        for row in batch.run(jobs, workers=args.workers, ray_address=args.ray):
+            if row["error"]:
+                bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
+            rows.append(row)
+            bar.update()
+    rows.sort(key=lambda row: order[row["file"]])
+    _say(args, batch.table(rows))
+    return EXIT_ERROR if any(row["error"] for row in rows) else 0
 
 
 def _cmd_evaluate(args) -> int:
@@ -208,6 +244,12 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_methods(args) -> int:
+    if not args.verbose:  # names and summaries read from the sources: no torch import
+        from torchfill._catalog import entries
+
+        for name, doc in entries():
+            print(f"{name:<14} {doc}")
+        return 0
     from torchfill.solvers import base
 
     for name in base.available():
@@ -229,7 +271,8 @@ def _cmd_experiment(args) -> int:
         raise ValueError(str(err)) from None
 
     out = run_experiment(args.config, resume=args.resume, workers=args.workers,
-                         limit=args.limit, output=args.output, report_only=args.report_only)
+                         limit=args.limit, output=args.output, report_only=args.report_only,
+                         ray_address=args.ray)
     print(f"results in {out}")
     return 0
 
@@ -248,6 +291,15 @@ def _naming(path):
 
 def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
+
+
+def _window(args) -> dict:
+    """``fill()``'s ``window`` from ``--window`` (0: the whole recording at once; unset: default)."""
+    if args.window is None:
+        return {}
+    if args.window < 0 or args.window == 1:
+        raise ValueError(f"--window expected 0 or a number of frames >= 2, found {args.window}")
+    return {"window": args.window or None}
 
 
 def _parse_params(pairs: list[str]) -> dict:
@@ -327,10 +379,19 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fill", help="fill the gaps of a recording and write the result",
                        description="Fill the gaps of IN and write OUT; everything else in the file "
                                    "is kept, filled C3D samples get residual 0.")
-    p.add_argument("input", metavar="IN")
+    p.add_argument("input", metavar="IN", nargs="+",
+                   help="recording(s): files, folders or glob patterns (several need --out-dir)")
     p.add_argument("-o", "--output", metavar="OUT", help="output file (default: IN_filled.EXT)")
+    p.add_argument("--out-dir", metavar="DIR", help="write each filled recording here, same name")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="fill N files at once in separate processes (default 1)")
+    p.add_argument("--ray", metavar="ADDRESS", help="distribute the files as Ray tasks: 'auto' "
+                   "(a running cluster), 'local' (start one here) or ray://HOST:PORT")
     p.add_argument("-m", "--method", help="method name (see 'torchfill methods'; default: the best)")
     p.add_argument("--max-gap", type=int, metavar="FRAMES", help="leave longer gaps unfilled")
+    p.add_argument("--window", type=int, metavar="FRAMES",
+                   help="fill longer recordings in overlapping windows of this many frames "
+                        "(default 6000; 0: the whole recording at once)")
     p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
@@ -392,6 +453,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--output", help="output folder (default: results/<name> beside the config)")
     p.add_argument("--report-only", action="store_true",
                    help="only rewrite table.md and the plots from the cases.csv there")
+    p.add_argument("--ray", metavar="ADDRESS", help="run the cases as Ray tasks: 'auto', 'local' "
+                   "or ray://HOST:PORT (every node needs the recordings at the same path)")
     p.set_defaults(run=_cmd_experiment)
     return parser
 

@@ -11,6 +11,7 @@ import torch
 
 from .constraints import constrain
 from .metrics import gap_runs
+from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
 
@@ -35,8 +36,8 @@ def default_method() -> str:
 
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         progress: Callable[[dict], None] | None = None, constraints: bool = True,
-         extrapolate: float | None = 0.25, **params):
+         window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
+         constraints: bool = True, extrapolate: float | None = 0.25, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -49,6 +50,11 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional
         Gaps longer than this many frames are left unfilled (NaN).
+    window : int or None
+        Recordings longer than this many frames are filled in overlapping windows, blended with a
+        cross-fade (see :mod:`torchfill.windows`: the window grows to 6x the longest gap, the
+        overlap is 2x the longest gap), so time grows linearly with the length and memory is
+        bounded. ``None`` fills the whole recording at once.
     progress : callable, optional
         Called with each iteration's diagnostics (a dict from the solver's ``history_``).
     constraints : bool
@@ -76,6 +82,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
+    if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 2):
+        raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
     training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
     if training is not None and "training" not in solver.fit_data:
@@ -100,20 +108,26 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: {names}",
                       UnfilledWarning, stacklevel=2)
     todo = missing & ~never
-    info = {"method": method, "n_iter": 0, "seconds": 0.0}
+    info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0}
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
         extra = {}
         if training is not None:
             extra["training"] = _align_training(training, data, keep.tolist(), points.shape[1])
-        solver = get_solver(method, **params)
         Xk = torch.where(unfit[:, keep, None], torch.nan, points[:, keep])
+        del points                      # long recordings: hold as few full-length copies as we can
+        plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
-        filled = solver.fit(Xk, unfit[:, keep], callback=progress, **extra).transform(Xk)
-        info.update(n_iter=solver.n_iter_, seconds=time.perf_counter() - start)
-        part = out[:, keep]
-        part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
-        out[:, keep] = part
+        filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
+            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info))
+        info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
+        del Xk
+        whole = len(keep) == out.shape[1]
+        part = out if whole else out[:, keep]
+        write = todo[:, keep, None] & ~torch.isfinite(part)
+        part[write] = filled[write].to(out.dtype)
+        if not whole:
+            out[:, keep] = part
     if constraints and bool(todo.any()):
         out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate)
     if max_gap is not None:
@@ -154,6 +168,17 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
                           long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names)
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
+
+
+def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
+                 progress: Callable[[dict], None] | None, info: dict) -> torch.Tensor:
+    """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
+    data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
+    steps (``auto``'s choice) belong here; the constraints run once, on the whole recording."""
+    solver = get_solver(method, **params)
+    filled = solver.fit(X, missing, callback=progress, **extra).transform(X)
+    info["n_iter"] += solver.n_iter_
+    return filled
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:

@@ -244,8 +244,9 @@ def plan(config_path, *, resume: bool = False, limit: int | None = None, output=
     return Plan(cfg, out_dir, runs_dir, header, cases, todo, done, showcase, notes)
 
 
-def execute(p: Plan, *, workers: int = 1) -> None:
-    """Run ``p.todo``, appending each finished case's row to ``cases.csv`` (flushed at once)."""
+def execute(p: Plan, *, workers: int = 1, ray_address: str | None = None) -> None:
+    """Run ``p.todo``, appending each finished case's row to ``cases.csv`` (flushed at once); in
+    ``workers`` local processes, or as Ray tasks with ``ray_address``."""
     cfg = p.cfg
     if workers < 1:
         raise ValueError(f"{cfg.path.name}: workers expected >= 1, found {workers}")
@@ -275,7 +276,13 @@ def execute(p: Plan, *, workers: int = 1) -> None:
         args = [(str(cfg.path), c, str(p.runs_dir)) for c in todo]
         show = [_is_showcase(c, p.showcase) for c in todo]
         threads = threads_per_case()
-        if workers == 1:
+        if ray_address is not None:
+            from ..batch import ray_map
+
+            for i, row in enumerate(ray_map(run_case, args, ray_address,
+                                            kwargs=[{"showcase": s} for s in show]), 1):
+                record(i, row)
+        elif workers == 1:
             import torch
 
             before = torch.get_num_threads()
@@ -312,7 +319,7 @@ def report(p: Plan, *, workers: int = 1) -> Path:
 
 
 def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit: int | None = None,
-                   output=None, report_only: bool = False) -> Path:
+                   output=None, report_only: bool = False, ray_address: str | None = None) -> Path:
     """Run every case of ``config_path``: :func:`plan`, :func:`execute`, :func:`report`.
 
     Parameters
@@ -324,6 +331,8 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     output : folder for the results (default ``<results_dir>/<name>``, ``results_dir`` defaulting
         to ``results/`` beside the config file); per-iteration logs go to ``<output>/runs``.
     report_only : run nothing; rewrite ``table.md`` and the plots from the ``cases.csv`` there.
+    ray_address : run the cases as Ray tasks instead (``"auto"``, ``"local"`` or a cluster address;
+        ``pip install torchfill[ray]``); every node needs the config's recordings at the same path.
 
     Returns
     -------
@@ -338,7 +347,7 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
         print(f"{p.cfg.name}: report of {len(p.done)} finished case(s); {len(p.todo)} not run",
               flush=True)
     else:
-        execute(p, workers=workers)
+        execute(p, workers=workers, ray_address=ray_address)
     return report(p, workers=workers)
 
 

@@ -1,0 +1,97 @@
+"""Long recordings: time, peak memory and accuracy of the default fill against the frame count.
+
+HDM05 recordings (41 markers, 120 Hz) from the shared data are concatenated and tiled to each
+length; every 3 000-frame block gets the Tucker paper's gaps (``gaps.multi_gap``: 20 markers, up to
+5 gaps each) of a random length in 100..200 frames, so the gap density is the same at every length.
+Each length runs in a fresh process (peak RSS from ``resource.getrusage``).
+
+    OMP_NUM_THREADS=1 nice python scripts/bench_long.py --frames 3000 12000 36000 120000
+    OMP_NUM_THREADS=1 nice python scripts/bench_long.py --frames 12000 --window 600 1200 2400 0
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's torchfill, also in the per-length subprocesses
+DATA = Path(os.environ.get("TORCHFILL_DATA") or ROOT / ".." / "shared" / "data")
+FILES = ("HDM_bd_01-02_01_120.c3d", "hdm05_bd_05-01_01_120.c3d", "hdm05_mm_01-02_03_120.c3d")
+BLOCK = 3000
+
+
+def recording(frames: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth ``(frames, 41, 3)`` and its simulated-gap mask."""
+    import torchfill
+    from torchfill import gaps
+
+    clips = [torchfill.read(DATA / name).points for name in FILES]
+    reps = -(-frames // sum(len(c) for c in clips))
+    truth = np.concatenate(clips * reps)[:frames]
+    rng = np.random.default_rng(seed)
+    mask = np.zeros(truth.shape[:2], dtype=bool)
+    for a in range(0, frames, BLOCK):
+        n = min(BLOCK, frames - a)
+        mask[a:a + n] = gaps.multi_gap(n, truth.shape[1], n_markers=20,
+                                       gap_length=int(rng.integers(100, 201)),
+                                       seed=int(rng.integers(2**31)))
+    return truth, mask
+
+
+def one(frames: int, method: str | None, window: int | None) -> dict:
+    import torchfill
+    from torchfill import metrics
+
+    truth, mask = recording(frames)
+    given = np.where(mask[..., None], np.nan, truth)
+    start = time.perf_counter()
+    out = torchfill.fill(given, method, window=window)
+    seconds = time.perf_counter() - start
+    assert np.array_equal(out[~mask], truth[~mask])
+    return {"frames": frames, "method": method or torchfill.default_method(),
+            "window": window, "seconds": round(seconds, 2),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+            "rmse_missing_mm": round(metrics.rmse_missing(out, truth, mask), 2),
+            "gap_error_mm": round(metrics.gap_error(out, truth, mask), 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, nargs="+", default=[3000, 12000, 36000, 120000])
+    parser.add_argument("--window", type=int, nargs="+", default=[-1],
+                        help="window lengths (0 = whole recording, -1 = the default)")
+    parser.add_argument("--method", default=None)
+    parser.add_argument("--timeout", type=float, default=900)
+    parser.add_argument("--one", nargs=2, type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one:
+        from torchfill.windows import WINDOW
+        window = {-1: WINDOW, 0: None}.get(args.one[1], args.one[1])
+        print(json.dumps(one(args.one[0], args.method, window)))
+        return
+    print(subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    for window in args.window:
+        for frames in args.frames:
+            cmd = [sys.executable, __file__, "--one", str(frames), str(window)]
+            if args.method:
+                cmd += ["--method", args.method]
+            try:
+                res = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+                line = res.stdout.strip().splitlines()[-1] if res.returncode == 0 else \
+                    f"failed: {res.stderr.strip().splitlines()[-1:]}"
+            except subprocess.TimeoutExpired:
+                line = f"frames {frames} window {window}: timed out after {args.timeout:.0f} s"
+            print(line, flush=True)
+    print(subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+
+
+if __name__ == "__main__":
+    main()

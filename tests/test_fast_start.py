@@ -1,0 +1,70 @@
+"""Fast start: the CLI's help, ``info`` and ``methods`` run without importing torch, tensorly or
+Lightning; ``import torchfill`` never imports Lightning; the static method list is the registry."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+HEAVY = ("torch", "tensorly", "lightning", "pytorch_lightning")
+
+
+def _imported_after(code: str, heavy: tuple[str, ...] = HEAVY) -> set[str]:
+    """Modules of ``heavy`` in ``sys.modules`` after running ``code`` in a fresh interpreter."""
+    probe = (f"import sys\n{code}\n"
+             f"print('HEAVY:' + ','.join(m for m in {heavy!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    line = out.stdout.strip().splitlines()[-1]
+    assert line.startswith("HEAVY:"), out.stdout[-300:]
+    return set(filter(None, line[len("HEAVY:"):].split(",")))
+
+
+@pytest.fixture
+def small_npz(tmp_path):
+    X = np.random.default_rng(0).normal(size=(50, 4, 3))
+    X[10:20, 1] = np.nan
+    path = tmp_path / "t.npz"
+    np.savez(path, points=X, labels=np.array(["A", "B", "C", "D"]), rate=100.0, units="mm")
+    return path
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["methods"], ["fill", "--help"]])
+def test_cli_starts_without_torch(argv):
+    code = ("from torchfill.cli import main\n"
+            f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass")
+    assert _imported_after(code) == set()
+    assert _imported_after(code, heavy=("numpy",)) == set()     # help and names need no NumPy
+
+
+def test_info_runs_without_torch(small_npz):
+    code = f"from torchfill.cli import main\nassert main(['info', {str(small_npz)!r}]) == 0"
+    assert _imported_after(code) == set()
+
+
+def test_import_torchfill_is_light_and_fill_still_works():
+    assert _imported_after("import torchfill") == set()
+    loaded = _imported_after("import torchfill\nassert 'tucker_tnn' in torchfill.methods()")
+    assert "torch" in loaded and "lightning" not in loaded and "pytorch_lightning" not in loaded
+
+
+def test_static_method_list_is_the_registry():
+    import torchfill
+    from torchfill._catalog import entries
+    from torchfill.solvers import base
+
+    listed = entries()
+    assert [name for name, _ in listed] == torchfill.methods()
+    for name, summary in listed:
+        doc = (base._REGISTRY[name].__doc__ or "").strip()
+        assert summary == (doc.splitlines()[0] if doc else "")
+
+
+def test_methods_cli_lists_every_registered_method(capsys):
+    import torchfill
+    from torchfill.cli import main
+
+    assert main(["methods"]) == 0
+    printed = [line.split()[0] for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert printed == torchfill.methods()

@@ -1,0 +1,92 @@
+"""Windowed fills: the plan covers the recording with overlaps that hold every gap whole, the blend
+is a convex combination (a local method gives exactly its unwindowed fill), observed samples stay
+bit-for-bit, and on a real recording a windowed low-rank fill stays close to the whole fill."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import torchfill
+from torchfill import gaps, metrics, windows
+from torchfill.metrics import gap_runs
+
+
+def _long_walk(T=3000, J=6, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / 120
+    phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
+    return 800 + 300 * np.sin(0.7 * t + phase) + 40 * np.cos(3.1 * t + 2 * phase)
+
+
+@pytest.mark.parametrize("T, gap, window", [(3000, 40, 300), (5000, 150, 600), (1000, 20, 2000),
+                                            (2500, 300, 1000)])
+def test_plan_covers_and_holds_every_gap_whole(T, gap, window):
+    mask = gaps.multi_gap(T, 8, n_markers=6, gap_length=gap, max_gaps=5, seed=T)
+    plan = windows.plan(mask, window)
+    starts, stops = zip(*plan.windows)
+    assert starts[0] == 0 and stops[-1] == T and list(starts) == sorted(starts)
+    assert all(b - a == plan.length for a, b in plan.windows)
+    assert all(stops[k] - starts[k + 1] >= plan.overlap for k in range(len(starts) - 1))
+    for j, a, b in gap_runs(mask):   # some window holds the gap and one frame either side
+        assert any(s <= max(a - 1, 0) and min(b + 1, T) <= e for s, e in plan.windows)
+    if window >= T:
+        assert plan.windows == ((0, T),)
+
+
+def test_blend_weights_sum_to_one_on_every_gap():
+    T = 4000
+    mask = gaps.multi_gap(T, 5, n_markers=5, gap_length=120, max_gaps=5, seed=3)
+    plan = windows.plan(mask, 800)
+    total = np.zeros(mask.shape)
+    for k, (a, b) in enumerate(plan.windows):
+        total[a:b] += windows.weight(plan, k, mask[a:b], T)
+    assert len(plan.windows) > 3
+    assert (total[mask] > 0).all()   # no gap is cut by every window that reaches it
+
+
+def test_windowed_linear_fill_equals_the_whole_fill():
+    X = _long_walk()
+    mask = gaps.multi_gap(*X.shape[:2], n_markers=5, gap_length=60, max_gaps=5, seed=2)
+    given = np.where(mask[..., None], np.nan, X)
+    whole = torchfill.fill(given, "linear", window=None)
+    windowed = torchfill.fill(given, "linear", window=400)
+    np.testing.assert_allclose(windowed, whole, rtol=0, atol=1e-9)
+    assert np.array_equal(windowed[~mask], X[~mask])
+
+
+def test_window_is_validated():
+    with pytest.raises(ValueError, match="window expected"):
+        torchfill.fill(_long_walk(T=50), "linear", window=1)
+
+
+def test_windowed_low_rank_fill_of_a_real_recording(recording):
+    truth = torchfill.read(recording("cmu_02_01.c3d")).points            # 343 frames, 41 markers
+    mask = gaps.multi_gap(*truth.shape[:2], n_markers=10, gap_length=30, max_gaps=3, seed=1)
+    given = np.where(mask[..., None], np.nan, truth)
+    windowed = torchfill.fill(given, "svt", window=300)                   # two windows
+    assert len(windows.plan(mask, 300).windows) == 2
+    assert np.array_equal(windowed[~mask], truth[~mask]) and np.isfinite(windowed).all()
+    err = metrics.rmse_missing(windowed, truth, mask)
+    whole = metrics.rmse_missing(torchfill.fill(given, "svt", window=None), truth, mask)
+    linear = metrics.rmse_missing(torchfill.fill(given, "linear"), truth, mask)
+    assert err < 0.5 * linear and err < 1.25 * whole    # mm: measured 7.4 vs 7.2 whole, 20.4 linear
+
+
+def test_cli_window_reaches_fill(tmp_path):
+    from torchfill.cli import main
+
+    X = _long_walk(T=600)
+    mask = gaps.multi_gap(*X.shape[:2], n_markers=4, gap_length=40, max_gaps=3, seed=3)
+    given = np.where(mask[..., None], np.nan, X)
+    src = tmp_path / "walk.npz"
+    np.savez(src, points=given, labels=np.array([f"M{j}" for j in range(X.shape[1])]), rate=120.0,
+             units="mm")
+    for flag, window in (("300", 300), ("0", None)):
+        out = tmp_path / f"out{flag}.npz"
+        assert main(["fill", str(src), "-o", str(out), "-m", "svt", "-p", "max_iter=30", "-q",
+                     "--window", flag]) == 0
+        expected = torchfill.fill(given, "svt", window=window, max_iter=30)
+        assert np.array_equal(np.load(out)["points"], expected)
+    assert not np.array_equal(np.load(tmp_path / "out300.npz")["points"],
+                              np.load(tmp_path / "out0.npz")["points"])   # 3 windows vs 1
+    assert main(["fill", str(src), "-o", str(tmp_path / "x.npz"), "--window", "-5"]) == 2

@@ -1,0 +1,105 @@
+"""Windowed fills of long recordings: the window plan and the blend of the windows' fills.
+
+A long recording is filled in overlapping windows of ``length`` frames, so time grows linearly with
+the number of frames and memory is bounded by one window. The plan is chosen from the gaps:
+
+- ``overlap = 2 * longest gap`` (at least ``MIN_OVERLAP``): every gap, with half its length of
+  observed context on each side, then lies whole inside at least one window;
+- ``length = max(window, 3 * overlap)``: windows are long against their overlaps, so most frames
+  are solved once (a window costs about ``length / (length - overlap)`` times a single pass);
+- windows are spread evenly with overlaps of at least ``overlap``; when ``length >= T`` there is
+  one window, which is the unwindowed fill.
+
+Blending: each window's fill gets a weight that ramps linearly from its edges over ``overlap``
+frames (a cross-fade; no ramp at the recording's own ends), set to zero on every gap the window
+cuts (a gap that does not have an observed frame of that marker, or the recording's end, on both
+sides inside the window), then normalized across windows. A gap's fill is therefore a convex
+combination, smooth in time, of the fills of the windows that hold it whole. Observed samples are
+not blended: ``fill()`` only writes missing samples.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .metrics import gap_runs
+
+#: Default window length in frames (chosen on accuracy and speed, see the README's "Long recordings").
+WINDOW = 6000
+#: Smallest overlap between windows, in frames.
+MIN_OVERLAP = 100
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Windows as ``(start, stop)`` frame ranges, and the overlap the cross-fade ramps over."""
+
+    windows: tuple[tuple[int, int], ...]
+    overlap: int
+
+    @property
+    def length(self) -> int:
+        return max(b - a for a, b in self.windows)
+
+
+def plan(missing: np.ndarray, window: int | None = WINDOW) -> Plan:
+    """The window plan for a ``(T, J)`` missing mask; ``window=None`` means one window."""
+    missing = np.asarray(missing, dtype=bool)
+    T = missing.shape[0]
+    seen = ~missing.all(axis=0)          # markers never observed are not filled at all
+    longest = max((b - a for j, a, b in gap_runs(missing[:, seen])), default=0)
+    overlap = max(MIN_OVERLAP, 2 * longest)
+    length = T if window is None else max(int(window), 3 * overlap)
+    if length >= T:
+        return Plan(((0, T),), overlap)
+    n = math.ceil((T - overlap) / (length - overlap))
+    starts = np.round(np.linspace(0, T - length, n)).astype(int)
+    return Plan(tuple((int(s), int(s) + length) for s in starts), overlap)
+
+
+def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tensor]) -> torch.Tensor:
+    """Fill every window with ``solve(start, stop)`` (a ``(stop - start, J, 3)`` tensor) and blend
+    the fills with :func:`weight`; one window's fill is held at a time. NaN where no window fills."""
+    T, J = missing.shape
+    num = den = None
+    for k, (a, b) in enumerate(p.windows):
+        part = solve(a, b)
+        if len(p.windows) == 1:
+            return part
+        w = torch.as_tensor(weight(p, k, missing[a:b].cpu().numpy(), T), dtype=part.dtype,
+                            device=part.device)
+        if num is None:
+            num = torch.zeros((T, J, 3), dtype=part.dtype, device=part.device)
+            den = torch.zeros((T, J), dtype=part.dtype, device=part.device)
+        w = torch.where(torch.isfinite(part).all(dim=2), w, 0.0)
+        num[a:b] += w[..., None] * torch.nan_to_num(part)
+        den[a:b] += w
+    num /= den.clamp_min(1e-300)[..., None]          # in place: no more full-length copies
+    num[den == 0] = torch.nan
+    return num
+
+
+def weight(p: Plan, k: int, missing: np.ndarray, T: int) -> np.ndarray:
+    """Unnormalized blend weight ``(stop - start, J)`` of window ``k`` given its missing mask: the
+    cross-fade ramp, zero on the gaps the window cuts."""
+    a, b = p.windows[k]
+    w = np.repeat(_ramp(a, b, T, p.overlap)[:, None], missing.shape[1], axis=1)
+    for j, s, e in gap_runs(missing):
+        if (s == 0 and a > 0) or (e == b - a and b < T) or (s == 0 and e == b - a):
+            w[s:e, j] = 0.0
+    return w
+
+
+def _ramp(a: int, b: int, T: int, overlap: int) -> np.ndarray:
+    """Cross-fade weight of window ``[a, b)``: linear from its inner edges over ``overlap``."""
+    t = np.arange(a, b)
+    w = np.ones(b - a)
+    if a > 0:
+        w = np.minimum(w, (t - a + 1) / (overlap + 1))
+    if b < T:
+        w = np.minimum(w, (b - t) / (overlap + 1))
+    return w
