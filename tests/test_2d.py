@@ -1,0 +1,77 @@
+"""2-D keypoint tracks (T, J, 2): every registered method fills them, observed samples unchanged,
+and the default fill beats linear interpolation on a side-view projection of a real recording."""
+from __future__ import annotations
+
+import warnings
+import numpy as np
+import pytest
+
+import torchfill
+from torchfill import gaps, metrics
+from torchfill.projection import side_view
+
+T, J = 120, 8
+#: Cheap hyperparameters (the contract, not the accuracy, is tested on the synthetic motion).
+CHEAP = {"linear": {}, "spline": {}, "pchip": {}, "pca_blackout": {},
+         "trnn": {"max_iter": 3, "inner_iter": 5}, "trnn_d2": {"max_iter": 3, "inner_iter": 5},
+         "grad_tucker": {"max_iter": 3, "rank": [3, 3, 2]}, "grad_cp": {"max_iter": 3, "rank": 3}}
+
+
+def motion(seed: int = 0) -> np.ndarray:
+    """Smooth rank-4 image motion in pixels around a per-keypoint offset, (T, J, 2)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) / 30.0
+    basis = np.stack([np.sin(2 * np.pi * 0.9 * t), np.cos(2 * np.pi * 0.9 * t),
+                      np.sin(2 * np.pi * 1.8 * t + 0.3), t], axis=1)
+    B = rng.normal(0.0, 40.0, size=(4, J, 2))
+    return np.einsum("tk,kjc->tjc", basis, B) + rng.normal(500.0, 200.0, size=(1, J, 2))
+
+
+MASK = np.zeros((T, J), dtype=bool)
+MASK[20:35, 1] = MASK[60:80, 4] = MASK[90:100, 6] = MASK[:6, 7] = MASK[112:, 2] = True
+XY = motion()
+GAPPY = np.where(MASK[..., None], np.nan, XY)
+
+
+@pytest.mark.parametrize("method", torchfill.methods())
+def test_every_method_fills_2d_and_keeps_observed(method):
+    params = dict(CHEAP.get(method, {"max_iter": 3}))
+    if method == "pca_train":
+        params["training"] = [motion(seed=1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = torchfill.fill(GAPPY, method, **params)
+    assert out.shape == XY.shape
+    assert np.isfinite(out).all()
+    assert np.array_equal(out[~MASK], XY[~MASK])                # bit for bit
+
+
+def test_2d_sequence_and_tensor_in_same_kind_out():
+    import torch
+
+    seq = torchfill.MarkerSequence(points=GAPPY, labels=[f"K{j}" for j in range(XY.shape[1])],
+                                   units="px")
+    out = torchfill.fill(seq, "linear")
+    assert isinstance(out, torchfill.MarkerSequence) and out.points.shape == XY.shape
+    assert np.array_equal(out.meta["filled"], MASK)
+    tensor = torchfill.fill(torch.from_numpy(GAPPY), "linear")
+    assert isinstance(tensor, torch.Tensor) and np.array_equal(tensor.numpy(), out.points)
+
+
+def test_pca_training_must_match_the_coordinate_count():
+    with pytest.raises(ValueError, match=r"\(T, 8, 2\)"):
+        torchfill.fill(GAPPY, "pca_train", training=[np.zeros((T, J, 3))])
+
+
+def test_default_fill_of_a_real_side_view_beats_linear(data_dir):
+    """CMU 02_01 (walk) seen from the side: 60-frame gaps on 8 keypoints. The bound (0.5 x linear
+    RMSE) is the issue's target; measured 0.1-0.2 x over seeds 0-4 (scripts/eval_2d.py)."""
+    seq = side_view(torchfill.read(data_dir / "cmu_02_01.c3d"))
+    T, J = seq.points.shape[:2]
+    mask = gaps.generate("multi_gap", T, J, n_markers=8, gap_length=60, max_gaps=2, seed=0)
+    gappy = np.where(mask[..., None], np.nan, seq.points)
+    out = torchfill.fill(gappy)
+    linear = torchfill.fill(gappy, "linear")
+    assert np.array_equal(out[~mask], seq.points[~mask])
+    ours, base = (metrics.rmse_missing(x, seq.points, mask) for x in (out, linear))
+    assert ours <= 0.5 * base, (ours, base)
