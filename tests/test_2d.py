@@ -75,3 +75,13 @@ def test_default_fill_of_a_real_side_view_beats_linear(data_dir):
     assert np.array_equal(out[~mask], seq.points[~mask])
     ours, base = (metrics.rmse_missing(x, seq.points, mask) for x in (out, linear))
     assert ours <= 0.5 * base, (ours, base)
+
+
+def test_rmse_missing_counts_two_coordinates_per_keypoint():
+    truth = np.zeros((4, 2, 2))
+    filled = truth.copy()
+    filled[1, 0] = [3.0, 4.0]                      # one missing keypoint, 2-D error 5
+    mask = np.zeros((4, 2), dtype=bool)
+    mask[1, 0] = True
+    assert metrics.rmse_missing(filled, truth, mask) == pytest.approx(np.sqrt(25 / 2))
+    assert metrics.gap_error(filled, truth, mask) == pytest.approx(5.0)

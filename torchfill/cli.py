@@ -54,7 +54,7 @@ def _one_line(err: BaseException) -> str:
 def _cmd_fill(args) -> int:
     import torchfill
 
-    seq = torchfill.read(args.input)
+    seq = torchfill.read(args.input, **_pose_options(args))
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     params = _parse_params(args.param)
     if args.training:
@@ -76,7 +76,7 @@ def _cmd_evaluate(args) -> int:
     import torchfill
     from torchfill import gaps, metrics
 
-    seq = torchfill.read(args.input)
+    seq = torchfill.read(args.input, **_pose_options(args))
     complete = ~seq.mask.any(axis=0)
     if complete.sum() < 2:
         raise ValueError(f"{args.input}: fewer than 2 markers are complete; "
@@ -111,7 +111,7 @@ def _cmd_info(args) -> int:
     import torchfill
     from torchfill.metrics import gap_runs
 
-    seq = torchfill.read(args.input, markers_only=not args.all_points)
+    seq = torchfill.read(args.input, markers_only=not args.all_points, **_pose_options(args))
     runs = gap_runs(seq.mask)
     print(seq)
     print(f"frames {seq.n_frames}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
@@ -151,6 +151,16 @@ def _cmd_experiment(args) -> int:
 # -- helpers ---------------------------------------------------------------------------------------
 def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
+
+
+def _pose_options(args) -> dict:
+    """Reader options of OpenPose folders (``--min-confidence``); an error for other inputs."""
+    value = getattr(args, "min_confidence", None)
+    if value is None:
+        return {}
+    if not Path(args.input).is_dir():
+        raise ValueError(f"{args.input}: --min-confidence applies to OpenPose folders only")
+    return {"min_confidence": value}
 
 
 def _parse_params(pairs: list[str]) -> dict:
@@ -218,7 +228,8 @@ def _clear_progress(args) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="torchfill", description=(
-        "Fill gaps in motion-capture marker data (C3D, TRC, .npy/.npz/.csv)."))
+        "Fill gaps in motion-capture marker data (C3D, TRC, .npy/.npz/.csv) and 2-D keypoint "
+        "tracks (OpenPose output folders)."))
     parser.add_argument("--version", action="version", version="torchfill 0.1.0")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
@@ -233,6 +244,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
@@ -253,6 +265,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
 
     p = sub.add_parser("info", help="frames, markers, and gaps per marker")
@@ -260,6 +273,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-markers", action="store_true", help="list markers without gaps too")
     p.add_argument("--all-points", action="store_true",
                    help="include model outputs and virtual points (C3D)")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_info)
 
     p = sub.add_parser("methods", help="list the registered methods")
@@ -274,6 +288,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--output", help="output folder (default: experiments/results/<name>)")
     p.set_defaults(run=_cmd_experiment)
     return parser
+
+
+def _add_pose_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--min-confidence", type=float, metavar="C",
+                   help="OpenPose folder: keypoints with confidence below C are missing "
+                        "(default: only confidence 0)")
 
 
 if __name__ == "__main__":
