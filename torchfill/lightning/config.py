@@ -20,7 +20,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 KNOWN_KEYS = {"name", "base", "description", "data_dir", "recordings", "training", "frames",
               "protocol", "grid", "seeds", "methods", "metrics", "table", "plots", "showcase",
-              "device", "dtype", "log"}
+              "device", "dtype", "log", "projection"}
 DEFAULT_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
 
 
@@ -75,6 +75,7 @@ class Config:
     device: str = "cpu"
     dtype: str = "float64"
     log: bool = True
+    projection: str | None = None      # "side_view": 2-D side views of the recordings
     raw: dict[str, Any] = field(default_factory=dict)
 
     def points(self) -> list[tuple[tuple[str, Any], ...]]:
@@ -176,12 +177,14 @@ def load_config(path) -> Config:
         if not (isinstance(frames, (list, tuple)) and len(frames) == 2):
             raise bad(f"frames expected [start, stop], found {frames!r}")
         frames = (int(frames[0]), int(frames[1]))
+    if raw.get("projection") not in (None, "side_view"):
+        raise bad(f"projection expected 'side_view' or none, found {raw.get('projection')!r}")
     return Config(path=path, name=name, data_dir=data_dir, recordings=recordings,
                   protocol=protocol, grid=grid, seeds=seeds, methods=methods,
                   metrics=metric_names, table=table, training=training, frames=frames,
                   plots=dict(raw.get("plots") or {}), showcase=dict(raw.get("showcase") or {}),
                   device=str(raw.get("device", "cpu")), dtype=str(raw.get("dtype", "float64")),
-                  log=bool(raw.get("log", True)), raw=raw)
+                  log=bool(raw.get("log", True)), projection=raw.get("projection"), raw=raw)
 
 
 def _tiny():

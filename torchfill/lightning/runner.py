@@ -49,7 +49,7 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     row = _key_row(cfg, case)
     start = time.perf_counter()
     try:
-        rec = load_recording(cfg.recording_path(case.recording), cfg.frames)
+        rec = load_recording(cfg.recording_path(case.recording), cfg.frames, cfg.projection)
         mask = make_mask(cfg.protocol, rec.shape, dict(case.point), case.seed)
         params = _training_params(cfg, case, rec.labels, get_solver, align_training)
         solver = get_solver(case.method.solver, **params)
@@ -98,7 +98,8 @@ def _training_params(cfg: Config, case: Case, labels, get_solver, align_training
     names = params["training"] if own else cfg.training
     if names is not None:
         names = [names] if isinstance(names, str) else names
-        params["training"] = [align_training(cfg.recording_path(n), labels) for n in names]
+        params["training"] = [align_training(cfg.recording_path(n), labels, cfg.projection)
+                              for n in names]
     return params
 
 
@@ -284,7 +285,7 @@ def _check_recordings(cfg: Config) -> list[str]:
             raise ValueError(f"{cfg.path.name}: recording {name} not found in {cfg.data_dir}")
     for name in cfg.recordings:
         try:
-            rec = load_recording(cfg.recording_path(name), cfg.frames)
+            rec = load_recording(cfg.recording_path(name), cfg.frames, cfg.projection)
         except ValueError as err:
             raise ValueError(f"{cfg.path.name}: {err}") from None
         notes.append(rec.note())
