@@ -85,3 +85,13 @@ def test_rmse_missing_counts_two_coordinates_per_keypoint():
     mask[1, 0] = True
     assert metrics.rmse_missing(filled, truth, mask) == pytest.approx(np.sqrt(25 / 2))
     assert metrics.gap_error(filled, truth, mask) == pytest.approx(5.0)
+
+
+def test_2d_arrays_round_trip_as_npz_and_3d_formats_refuse_them(tmp_path):
+    seq = torchfill.MarkerSequence(points=GAPPY, labels=[f"K{j}" for j in range(J)], units="px")
+    back = torchfill.read(torchfill.write(seq, tmp_path / "kp.npz"))
+    assert np.array_equal(back.points, GAPPY, equal_nan=True) and back.labels == seq.labels
+    for name in ("kp.c3d", "kp.trc", "kp.csv"):
+        with pytest.raises(torchfill.FileFormatError, match="2-D"):
+            torchfill.write(seq, tmp_path / name)
+        assert not (tmp_path / name).exists()

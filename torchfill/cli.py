@@ -193,7 +193,7 @@ def _table(rows: list[dict], units: str) -> str:
     cols = ["rmse", "ave", "std", "rmse_missing", "gap_error", "seconds", "iterations"]
     head = f"{'method':<12}" + "".join(f"{c:>14}" for c in cols)
     lines = [f"errors in {units}; rmse/ave/std over all entries (observed count as 0), "
-             "rmse_missing over the gaps, gap_error = mean 3-D error per gap", head, "-" * len(head)]
+             "rmse_missing over the gaps, gap_error = mean 3-D (2-D) error per gap", head, "-" * len(head)]
     for row in rows:
         lines.append(f"{row['method']:<12}" + "".join(
             f"{row[c]:>14.4g}" if c != "iterations" else f"{row[c]:>14d}" for c in cols))

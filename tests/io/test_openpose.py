@@ -178,3 +178,14 @@ def test_3d_points_are_refused_for_a_fresh_folder(tmp_path):
     with pytest.raises(FileFormatError, match="2-D"):
         torchfill.write(np.zeros((5, 3, 3)), tmp_path / "x")
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_evaluate_on_a_folder(tmp_path, capsys):
+    xy, _ = track(3)
+    folder = torchfill.write(xy, tmp_path / "walk")
+    code = main(["evaluate", str(folder), "-m", "linear,pchip", "--markers", "4",
+                 "--gap-length", "20", "--max-gaps", "2", "--json", "-q"])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["units"] == "px" and [r["method"] for r in result["results"]] == ["linear", "pchip"]
+    assert all(r["rmse_missing"] > 0 for r in result["results"])
