@@ -95,3 +95,21 @@ def test_2d_arrays_round_trip_as_npz_and_3d_formats_refuse_them(tmp_path):
         with pytest.raises(torchfill.FileFormatError, match="2-D"):
             torchfill.write(seq, tmp_path / name)
         assert not (tmp_path / name).exists()
+
+
+def test_experiment_config_serves_side_views(data_dir, tmp_path):
+    from pathlib import Path
+
+    from torchfill.lightning.config import load_config
+    from torchfill.lightning.data import align_training, load_recording
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "experiments" / "pca_2d.yaml")
+    assert cfg.projection == "side_view"
+    rec = load_recording(cfg.recording_path(cfg.recordings[0]), cfg.frames, cfg.projection)
+    assert rec.truth.shape == (200, 41, 2)
+    train = align_training(cfg.recording_path(cfg.training[0]), rec.labels, cfg.projection)
+    assert train.shape[1:] == (41, 2) and np.isfinite(train).all()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((Path(cfg.path).read_text()).replace("projection: side_view", "projection: top"))
+    with pytest.raises(ValueError, match="projection expected"):
+        load_config(bad)

@@ -13,6 +13,7 @@ One person is tracked. A frame with several people (OpenPose does not keep their
 frames) contributes the one nearest (mean keypoint distance over keypoints seen in both) to the
 person chosen in the previous frame; the first choice is the person with the largest total
 confidence. A warning says so. The index chosen in each frame is ``meta["person"]`` (-1: none).
+``person_id`` is not used (OpenPose leaves it -1 unless its experimental tracking is on).
 
 Writing
 -------
