@@ -189,3 +189,12 @@ def test_cli_evaluate_on_a_folder(tmp_path, capsys):
     result = json.loads(capsys.readouterr().out)
     assert result["units"] == "px" and [r["method"] for r in result["results"]] == ["linear", "pchip"]
     assert all(r["rmse_missing"] > 0 for r in result["results"])
+
+
+def test_write_back_of_a_subset_of_keypoints_is_refused(folder, tmp_path):
+    path, _, _ = folder
+    with pytest.warns(UserWarning):
+        part = torchfill.read(path).select([0, 1, 2])
+    with pytest.raises(FileFormatError, match="needs the 25 keypoints"):
+        torchfill.write(part, tmp_path / "part")
+    assert not (tmp_path / "part").exists()

@@ -197,8 +197,11 @@ def _write_back_files(seq: MarkerSequence, folder: Path) -> dict[str, bytes]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")                   # the reader's warnings were given once
         source = read(seq.source, min_confidence=meta["min_confidence"], key=key)
-    if source.meta["files"] != meta["files"] or source.points.shape != seq.points.shape:
+    if source.meta["files"] != meta["files"] or source.n_frames != seq.n_frames:
         _fail(folder, f"source folder {seq.source} changed since it was read")
+    if source.labels != seq.labels or source.points.shape != seq.points.shape:
+        _fail(folder, f"a write-back needs the {source.n_markers} keypoints of {seq.source} in "
+                      f"their order, found {seq.n_markers} ({', '.join(seq.labels[:4])} ...)")
     filled = filled_samples(seq, ~source.mask, folder)
     skipped = unwritten_edits(seq, source.points, filled)
     if skipped:
