@@ -113,3 +113,17 @@ def test_experiment_config_serves_side_views(data_dir, tmp_path):
     bad.write_text((Path(cfg.path).read_text()).replace("projection: side_view", "projection: top"))
     with pytest.raises(ValueError, match="projection expected"):
         load_config(bad)
+
+
+def test_side_view_is_the_projection_on_up_and_the_walking_direction():
+    t = np.arange(50.0)
+    walk = np.stack([-3.0 * t, 0.5 * t, 1000 + 10 * np.sin(t)], axis=1)     # walks towards -x
+    points = walk[:, None, :] + np.array([[0.0, 0, 0], [0, 0, 100], [0, 0, 500]])[None]
+    points[5:9, 1] = np.nan
+    seq = torchfill.MarkerSequence(points=points, labels=["a", "b", "c"])
+    view = side_view(seq)
+    u = np.array([-3.0, 0.5, 0.0]) / np.hypot(3.0, 0.5)
+    assert view.points.shape == (50, 3, 2)
+    assert np.allclose(view.points[..., 1], points[..., 2], equal_nan=True)   # v = up (z)
+    assert np.allclose(view.points[:, 0, 0], walk @ u)                        # u = travel, signed
+    assert np.isnan(view.points[5:9, 1]).all() and not np.isnan(view.points[9:, 1]).any()

@@ -36,9 +36,11 @@ def side_axes(points: np.ndarray, up: str = "z") -> tuple[np.ndarray, np.ndarray
     _, _, Vt = np.linalg.svd(horizontal, full_matrices=False)
     u = Vt[0] - (Vt[0] @ v) * v
     u /= np.linalg.norm(u)
-    frame_mean = np.nanmean(points, axis=1)                   # (T, 3), centroid per frame
-    seen = np.flatnonzero(np.isfinite(frame_mean).all(axis=1))
-    if seen.size >= 2 and (frame_mean[seen[-1]] - frame_mean[seen[0]]) @ u < 0:
+    finite = np.isfinite(points).all(axis=2)                   # (T, J)
+    count = finite.sum(axis=1)
+    centroid = np.where(finite[..., None], points, 0.0).sum(axis=1) / np.maximum(count, 1)[:, None]
+    seen = np.flatnonzero(count > 0)
+    if seen.size >= 2 and (centroid[seen[-1]] - centroid[seen[0]]) @ u < 0:
         u = -u
     return u, v
 
