@@ -115,6 +115,10 @@ def test_round_trip_keeps_observed_and_every_other_field(folder, tmp_path):
             if filled.meta["filled"][t, j]:
                 assert kp_b[3 * j:3 * j + 2] == filled.points[t, j].tolist()
     assert changed == int(filled.meta["filled"].any(axis=1).sum()) > 0
+    with pytest.warns(UserWarning):
+        seen = torchfill.read(out, include_filled=True)       # the fills, read back as data
+    assert np.array_equal(seen.points, filled.points, equal_nan=True)
+    assert np.array_equal(seen.meta["filled"], filled.meta["filled"])
     gap = slice(20, 45)                        # the filled wrist stays near the true track
     err = np.abs(filled.points[gap, 4] - xy[gap, 4]).max()
     assert err < 80.0, err

@@ -122,11 +122,15 @@ def _choose(people: list[np.ndarray | None], previous: np.ndarray | None) -> int
 
 
 def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
-         rate: float = 30.0, markers_only: bool = True) -> MarkerSequence:
+         rate: float = 30.0, include_filled: bool = False,
+         markers_only: bool = True) -> MarkerSequence:
     """Read an OpenPose output folder into a ``(T, J, 2)`` :class:`MarkerSequence` (pixels).
 
-    ``rate`` is the video frame rate (not stored by OpenPose; 30 by default). ``markers_only`` is
-    accepted for a uniform signature and ignored.
+    ``rate`` is the video frame rate (not stored by OpenPose; 30 by default).
+    ``include_filled=True`` reads a folder torchfill has filled with its fills: a keypoint with
+    confidence 0 but coordinates other than (0, 0) (OpenPose writes an undetected keypoint as
+    0, 0, 0) counts as observed, and ``meta["filled"]`` marks it. ``markers_only`` is accepted
+    for a uniform signature and ignored.
     """
     folder = Path(path)
     if not (isinstance(min_confidence, (int, float)) and 0.0 <= min_confidence <= 1.0):
@@ -150,6 +154,8 @@ def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
         elif K.shape[0] != J:
             _fail(f, f"{K.shape[0]} keypoints, the frames before have {J}")
         seen = (K[:, -1] > 0) & (K[:, -1] >= min_confidence)
+        if include_filled:
+            seen |= (K[:, -1] == 0) & (K[:, :-1] != 0).any(axis=1)
         points.append(np.where(seen[:, None], K[:, :-1], np.nan))
         conf.append(K[:, -1])
         previous = points[-1]
@@ -164,6 +170,8 @@ def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
                       "previous frame's choice, see meta['person'])", UserWarning, stacklevel=2)
     meta = {"format": "openpose", "layout": layout, "key": key, "files": [f.name for f in files],
             "person": chosen, "confidence": C, "min_confidence": float(min_confidence)}
+    if include_filled:
+        meta["filled"] = (C == 0) & np.isfinite(P).all(axis=2)
     return MarkerSequence(points=P, labels=list(names or (f"K{j}" for j in range(J))),
                           rate=float(rate), units="px", source=folder, meta=meta)
 
