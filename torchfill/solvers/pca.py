@@ -304,7 +304,7 @@ class _PCA(Solver):
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "training": Param(None, (list, tuple), allow_none=True,
-                          doc="list of (T_i, J, D) arrays with the data's markers in order (NaN "
+                          doc="list of (T_i, J, 3) arrays with the data's markers in order (NaN "
                               "allowed: only complete frames are used); None = the complete frames "
                               "of the recording itself"),
         "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
