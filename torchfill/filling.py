@@ -84,7 +84,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         keep = torch.nonzero(~never).flatten()
         if params.get("training") is not None:
             params["training"] = _align_training(params["training"], data, keep.tolist(),
-                                                 points.shape[1], points.shape[2])
+                                                 points.shape[1])
         solver = get_solver(method, **params)
         Xk = torch.where(missing[:, keep, None], torch.nan, points[:, keep])
         start = time.perf_counter()
@@ -98,9 +98,11 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     return _as_kind(out, kind, data, info)
 
 
-def _align_training(training, data, keep: list[int], n_markers: int,
-                    D: int = 3) -> list[torch.Tensor]:
+def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
     """Training recordings as tensors whose markers match ``data``'s kept markers, in order."""
+    data_shape = data.points.shape if isinstance(data, MarkerSequence) else (
+        data.shape if hasattr(data, "shape") else np.shape(data))
+    D = data_shape[2]                                                          # coordinates
     if isinstance(training, (MarkerSequence, np.ndarray, torch.Tensor)):
         training = [training]
     labels = data.short_labels() if isinstance(data, MarkerSequence) else None
