@@ -131,7 +131,7 @@ def test_mask_of_wrong_shape_is_an_error():
 # -- bad input -----------------------------------------------------------------------------------
 BAD_INPUTS = {
     "2-D": (np.zeros((10, 6)), "shape"),
-    "xy only": (np.zeros((10, 3, 2)), "shape"),
+    "no coordinates": (np.zeros((10, 3, 0)), "shape"),
     "one frame": (np.zeros((1, 3, 3)), "at least 2 frames"),
     "no markers": (np.zeros((10, 0, 3)), "at least"),
     "+inf": (np.where(np.arange(30).reshape(10, 1, 3) == 4, np.inf, 1.0), "infinite"),

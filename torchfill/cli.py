@@ -82,7 +82,7 @@ def _cmd_fill(args) -> int:
     if len(args.input) > 1 or args.out_dir or args.ray:
         return _cmd_fill_batch(args)
     args.input = args.input[0]
-    seq = torchfill.read(args.input)
+    seq = torchfill.read(args.input, **_pose_options(args))
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     torchfill.io.check_target(out_path)                 # refuse now, not after the fill
     params = _parse_params(args.param) | _window(args)
@@ -170,7 +170,7 @@ def _cmd_evaluate(args) -> int:
     import torchfill
     from torchfill import gaps, metrics
 
-    read = torchfill.read(args.input)
+    read = torchfill.read(args.input, **_pose_options(args))
     truth = read.merge_duplicates()
     T, J = truth.points.shape[:2]
     kwargs = _protocol_kwargs(args, J)
@@ -213,7 +213,7 @@ def _cmd_info(args) -> int:
     import torchfill
     from torchfill.metrics import gap_runs
 
-    seq = torchfill.read(args.input, markers_only=not args.all_points)
+    seq = torchfill.read(args.input, markers_only=not args.all_points, **_pose_options(args))
     T = seq.n_frames
     never = seq.mask.all(axis=0)
     runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
@@ -302,6 +302,16 @@ def _window(args) -> dict:
     return {"window": args.window or None}
 
 
+def _pose_options(args) -> dict:
+    """Reader options of OpenPose folders (``--min-confidence``); an error for other inputs."""
+    value = getattr(args, "min_confidence", None)
+    if value is None:
+        return {}
+    if not Path(args.input).is_dir():
+        raise ValueError(f"{args.input}: --min-confidence applies to OpenPose folders only")
+    return {"min_confidence": value}
+
+
 def _parse_params(pairs: list[str]) -> dict:
     """``NAME=VALUE`` pairs; VALUE as JSON (``true``, ``[8, 8, 3]``) or a Python literal as
     ``methods -v`` shows defaults (``True``, ``(8, 8, 3)``, ``None``), else a string."""
@@ -337,7 +347,7 @@ def _table(rows: list[dict], units: str) -> str:
     cols = ["rmse", "ave", "std", "rmse_missing", "gap_error", "seconds", "iterations"]
     head = f"{'method':<12}" + "".join(f"{c:>14}" for c in cols)
     lines = [f"errors in {units}; rmse/ave/std over all entries (observed count as 0), "
-             "rmse_missing over the gaps, gap_error = mean 3-D error per gap", head, "-" * len(head)]
+             "rmse_missing over the gaps, gap_error = mean 3-D (2-D) error per gap", head, "-" * len(head)]
     for row in rows:
         lines.append(f"{row['method']:<12}" + "".join(
             f"{row[c]:>14.4g}" if c != "iterations" else f"{row[c]:>14d}" for c in cols))
@@ -372,7 +382,8 @@ def _clear_progress(args) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="torchfill", description=(
-        "Fill gaps in motion-capture marker data (C3D, TRC, .npy/.npz/.csv)."))
+        "Fill gaps in motion-capture marker data (C3D, TRC, .npy/.npz/.csv) and 2-D keypoint "
+        "tracks (OpenPose output folders)."))
     parser.add_argument("--version", action="version", version="torchfill 0.1.0")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
@@ -401,6 +412,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
 
     p = sub.add_parser("qc", help="which filled gaps to trust: a per-gap report (text + HTML)",
@@ -432,6 +444,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
 
     p = sub.add_parser("info", help="frames, markers, and gaps per marker")
@@ -439,6 +452,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-markers", action="store_true", help="list markers without gaps too")
     p.add_argument("--all-points", action="store_true",
                    help="include model outputs and virtual points (C3D)")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_info)
 
     p = sub.add_parser("methods", help="list the registered methods")
@@ -457,6 +471,12 @@ def _parser() -> argparse.ArgumentParser:
                    "or ray://HOST:PORT (every node needs the recordings at the same path)")
     p.set_defaults(run=_cmd_experiment)
     return parser
+
+
+def _add_pose_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--min-confidence", type=float, metavar="C",
+                   help="OpenPose folder: keypoints with confidence below C are missing "
+                        "(default: only confidence 0)")
 
 
 if __name__ == "__main__":

@@ -77,7 +77,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
 
     Parameters
     ----------
-    filled : array (T, J, 3)
+    filled : array (T, J, D)
         Observed samples plus the method's fill (NaN where it left a sample unfilled).
     missing : bool array (T, J)
         The samples that were missing (True) and may be changed.
@@ -96,11 +96,13 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     report = ConstraintReport()
     if not missing.any() or not observed.any():
         return F, report
-    X = torch.from_numpy(np.where(observed[..., None], F, np.nan))
-    pairs = pairs if pairs is not None else rigid_pairs(X, torch.from_numpy(observed))
-    R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
-    done = done.numpy() & missing
-    F[done] = R.numpy()[done]
+    done = np.zeros_like(missing)
+    if F.shape[2] == 3:             # 2-D keypoints are projections: no rigid segments to keep
+        X = torch.from_numpy(np.where(observed[..., None], F, np.nan))
+        pairs = pairs if pairs is not None else rigid_pairs(X, torch.from_numpy(observed))
+        R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
+        done = done.numpy() & missing
+        F[done] = R.numpy()[done]
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
     if long is not None:
@@ -110,7 +112,8 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     _interpolate_blackouts(F, observed, free, report)
     free &= np.isfinite(F).all(axis=2)
     _blend_edges(F, free)
-    _soft_distances(F, free, pairs)
+    if F.shape[2] == 3:
+        _soft_distances(F, free, pairs)
     report.step_limit = step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
     _limit_steps(F, missing, report.step_limit, report)
     _clamp_to_volume(F, observed, missing, report)
@@ -151,7 +154,7 @@ def _interpolate_blackouts(F, observed, free, report) -> None:
             F[black, j] = np.nan
             continue
         inside = black & (t > t[known][0]) & (t < t[known][-1])
-        for c in range(3):
+        for c in range(F.shape[2]):
             F[inside, j, c] = np.interp(t[inside], t[known], F[known, j, c])
         F[black & ~inside, j] = np.nan
 
@@ -230,7 +233,7 @@ def _limit_steps(F, missing, limit: float, report) -> None:
             continue
         steps = _shorten(steps, 0.999 * limit, both=left is not None and right is not None)
         start = path[-1] - steps.sum(axis=0) if left is None and right is not None else path[0]
-        new = start + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+        new = start + np.concatenate([np.zeros((1, F.shape[2])), np.cumsum(steps, axis=0)])
         F[a:b, j] = new[int(left is not None):len(new) - int(right is not None)]
         report.shortened_gaps += 1
 

@@ -42,8 +42,9 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
 
     Parameters
     ----------
-    data : MarkerSequence, ndarray or torch.Tensor of shape (T, J, 3)
-        NaN marks a missing coordinate; a sample with any NaN coordinate counts as missing.
+    data : MarkerSequence, ndarray or torch.Tensor of shape (T, J, D)
+        D = 3 (markers, xyz) or 2 (image keypoints, xy); any D >= 1 for arrays and tensors. NaN
+        marks a missing coordinate; a sample with any NaN coordinate counts as missing.
     method : str, optional
         A name from :func:`methods` (default: the best registered, see ``DEFAULT_METHODS``).
     mask : array (T, J) of bool, optional
@@ -183,6 +184,9 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
     """Training recordings as tensors whose markers match ``data``'s kept markers, in order."""
+    data_shape = data.points.shape if isinstance(data, MarkerSequence) else (
+        data.shape if hasattr(data, "shape") else np.shape(data))
+    D = data_shape[2]                                                          # coordinates
     if isinstance(training, (MarkerSequence, np.ndarray, torch.Tensor)):
         training = [training]
     labels = data.short_labels() if isinstance(data, MarkerSequence) else None
@@ -202,8 +206,8 @@ def _align_training(training, data, keep: list[int], n_markers: int) -> list[tor
         else:
             item = np.asarray(item.detach().cpu() if isinstance(item, torch.Tensor) else item,
                               dtype=np.float64)
-            if item.ndim != 3 or item.shape[1:] != (n_markers, 3):
-                raise ValueError(f"training array expected shape (T, {n_markers}, 3) like the "
+            if item.ndim != 3 or item.shape[1:] != (n_markers, D):
+                raise ValueError(f"training array expected shape (T, {n_markers}, {D}) like the "
                                  f"recording to fill, found {item.shape}")
             item = item[:, keep]
         aligned.append(torch.from_numpy(np.array(item, dtype=np.float64)))
@@ -222,8 +226,9 @@ def _as_tensor(data) -> tuple[torch.Tensor, str]:
         if arr.dtype.kind not in "fiu":
             raise ValueError(f"expected numeric marker data, found dtype {arr.dtype}")
         X, kind = torch.from_numpy(np.array(arr, dtype=np.float64)), "array"
-    if X.ndim != 3 or X.shape[2] != 3:
-        raise ValueError(f"expected marker data of shape (T, J, 3), found {tuple(X.shape)}")
+    if X.ndim != 3 or X.shape[2] < 1:
+        raise ValueError(f"expected marker data of shape (T, J, D) (D = 3: xyz, 2: image "
+                         f"keypoints), found {tuple(X.shape)}")
     if X.shape[0] < 2 or X.shape[1] < 1:
         raise ValueError(f"expected at least 2 frames and 1 marker, found {tuple(X.shape)}")
     if bool(torch.isinf(X).any()):

@@ -1,5 +1,6 @@
-"""Accuracy metrics: pure functions of (filled, truth, mask). Inputs are arrays ``(T, J, 3)`` and a
-gap mask ``(T, J)`` (True = the sample was missing and has been filled).
+"""Accuracy metrics: pure functions of (filled, truth, mask). Inputs are arrays ``(T, J, D)`` (D = 3
+for markers, 2 for image keypoints) and a gap mask ``(T, J)`` (True = the sample was missing and has
+been filled).
 
 Two conventions coexist in the papers, and both are here:
 
@@ -43,7 +44,7 @@ def std(filled, truth, mask) -> float:
 def rmse_missing(filled, truth, mask) -> float:
     """RMSE over the missing entries only (each coordinate an entry; Imamura & Okuda Eq. 23)."""
     E, mask = _error(filled, truth, mask)
-    n = 3 * mask.sum()
+    n = E.shape[2] * mask.sum()
     return float(np.sqrt((E ** 2).sum() / n)) if n else 0.0
 
 
@@ -59,7 +60,8 @@ def gap_runs(mask) -> list[tuple[int, int, int]]:
 
 
 def gap_error(filled, truth, mask) -> float:
-    """Mean over gaps of the mean 3-D Euclidean error inside the gap (Li et al. 2020 Eq. 17)."""
+    """Mean over gaps of the mean Euclidean (3-D, or 2-D for keypoints) error inside the gap
+    (Li et al. 2020 Eq. 17)."""
     E, mask = _error(filled, truth, mask)
     d = np.linalg.norm(E, axis=2)
     runs = gap_runs(mask)
@@ -69,7 +71,7 @@ def gap_error(filled, truth, mask) -> float:
 def frame_rmse(filled, truth, mask) -> np.ndarray:
     """Per-frame RMSE over the frame's missing coordinates (NaN where nothing is missing)."""
     E, mask = _error(filled, truth, mask)
-    n = 3 * mask.sum(axis=1)
+    n = E.shape[2] * mask.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, np.sqrt((E ** 2).sum(axis=(1, 2)) / np.maximum(n, 1)), np.nan)
 

@@ -10,13 +10,14 @@ import numpy as np
 
 @dataclass
 class MarkerSequence:
-    """A marker recording: ``points`` of shape ``(T, J, 3)`` (frames x markers x xyz).
+    """A marker recording: ``points`` of shape ``(T, J, D)`` (frames x markers x coordinates).
 
-    Missing samples are ``NaN`` in all three coordinates.
+    ``D`` is 3 for marker data (xyz) and 2 for image keypoints (xy, e.g. OpenPose). Missing samples
+    are ``NaN`` in all coordinates.
 
     Attributes
     ----------
-    points : ndarray, float64, shape (T, J, 3)
+    points : ndarray, float64, shape (T, J, D), D = 2 or 3
     labels : list of str, length J (prefixes such as ``Subject:`` are kept; see :meth:`short_labels`)
     rate : float
         Frames per second.
@@ -37,8 +38,9 @@ class MarkerSequence:
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
-        if self.points.ndim != 3 or self.points.shape[2] != 3:
-            raise ValueError(f"points must have shape (T, J, 3), found {self.points.shape}")
+        if self.points.ndim != 3 or self.points.shape[2] not in (2, 3):
+            raise ValueError(f"points must have shape (T, J, 3) or (T, J, 2), found "
+                             f"{self.points.shape}")
         self.labels = [str(label) for label in self.labels]
         if len(self.labels) != self.points.shape[1]:
             raise ValueError(
@@ -74,6 +76,8 @@ class MarkerSequence:
             meta["point_index"] = [meta["point_index"][i] for i in index]
         if meta.get("filled") is not None:          # (T, J) mask of filled samples, per marker
             meta["filled"] = np.asarray(meta["filled"])[:, index]
+        if meta.get("confidence") is not None:      # (T, J) keypoint confidences (OpenPose)
+            meta["confidence"] = np.asarray(meta["confidence"])[:, index]
         return replace(self, points=self.points[:, index].copy(),
                        labels=[self.labels[i] for i in index], meta=meta)
 

@@ -45,7 +45,7 @@ def _bad_files(tmp_path):
     add("empty.npy", b"", "empty file")
     add("garbage.npy", b"\x93NUMPY garbage" * 10, "not a valid .npy")
     for name, array, fragment in [("shape.npy", np.zeros((10, 4)), "wrong array shape"),
-                                  ("shape3.npy", np.zeros((10, 2, 2)), "wrong array shape"),
+                                  ("shape3.npy", np.zeros((10, 2, 4)), "wrong array shape"),
                                   ("vector.npy", np.zeros(9), "wrong array shape"),
                                   ("inf.npy", np.array([[[0.0, np.inf, 0.0]]] * 2), "infinite"),
                                   ("text.npy", np.array([["a", "b", "c"]]), "numeric")]:

@@ -1,6 +1,7 @@
-"""Reading and writing recordings: C3D, TRC, and plain arrays (.npy, .npz, .csv).
+"""Reading and writing recordings: C3D, TRC, plain arrays (.npy, .npz, .csv), OpenPose folders.
 
-``read(path)`` and ``write(seq, path)`` dispatch on the file suffix. Every failure to read or write
+``read(path)`` and ``write(seq, path)`` dispatch on the file suffix; a folder (or, to write, a path
+without suffix) is an OpenPose output folder of ``*_keypoints.json`` files. Every failure to read or write
 raises :class:`FileFormatError`, whose message is one line naming the file and the problem.
 """
 from __future__ import annotations
@@ -18,10 +19,11 @@ class FileFormatError(ValueError):
 
 
 def read(path, **kwargs) -> MarkerSequence:
-    """Read a recording (.c3d, .trc, .npy, .npz, .csv) into a :class:`MarkerSequence`."""
+    """Read a recording (.c3d, .trc, .npy, .npz, .csv, OpenPose folder) into a
+    :class:`MarkerSequence`."""
     path = Path(path)
     reader = _pick(path, "read")
-    if not path.is_file():
+    if not path.is_file() and not path.is_dir():
         raise FileFormatError(f"{path}: no such file")
     return reader(path, **kwargs)
 
@@ -67,6 +69,8 @@ def _wrap(points, path: Path) -> MarkerSequence:
 
 
 def _pick(path: Path, verb: str):
+    if path.is_dir() or (verb == "write" and not path.suffix):
+        return getattr(import_module(".openpose", __name__), verb)
     table = {".c3d": "c3d", ".trc": "trc", ".npy": "arrays", ".npz": "arrays", ".csv": "arrays"}
     module = table.get(path.suffix.lower())
     if module is None:

@@ -109,11 +109,16 @@ def _mode_for(path: Path) -> int:
         return 0o666 & ~umask
 
 
-def check_writable(seq, path: Path) -> MarkerSequence:
-    """Validate what is about to be written: a MarkerSequence of finite-or-NaN points."""
+def check_writable(seq, path: Path, dims: tuple[int, ...] = (3,)) -> MarkerSequence:
+    """Validate what is about to be written: a MarkerSequence of finite-or-NaN points with a
+    coordinate count the format holds (``dims``)."""
     if not isinstance(seq, MarkerSequence):
         raise FileFormatError(f"{path}: expected a MarkerSequence to write, found "
                               f"{type(seq).__name__}")
+    if seq.points.shape[2] not in dims:
+        raise FileFormatError(f"{path}: this format holds {' or '.join(map(str, dims))}-D points, "
+                              f"found {seq.points.shape[2]}-D (write 2-D keypoints as .npy, .npz "
+                              "or an OpenPose folder)")
     if np.isinf(seq.points).any():
         raise FileFormatError(f"{path}: cannot write infinite coordinates (use NaN for missing)")
     if seq.n_frames == 0:

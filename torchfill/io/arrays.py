@@ -35,14 +35,15 @@ def _fail(path, problem: str):
 
 
 def _as_points(array: np.ndarray, path: Path) -> np.ndarray:
-    """``(T, J, 3)`` float64 from a ``(T, J, 3)`` or ``(T, 3J)`` numeric array."""
+    """``(T, J, 3)`` float64 from a ``(T, J, 3)`` or ``(T, 3J)`` numeric array; ``(T, J, 2)``
+    (image keypoints) is kept as it is."""
     if array.dtype.kind not in "fiub":
         _fail(path, f"expected a numeric array, found dtype {array.dtype}")
     if array.ndim == 2 and array.shape[1] % 3 == 0 and array.shape[1] > 0:
         array = array.reshape(array.shape[0], array.shape[1] // 3, 3)   # x1 y1 z1 x2 ... (C order)
-    if array.ndim != 3 or array.shape[2] != 3 or array.shape[1] == 0:
-        _fail(path, f"wrong array shape {array.shape}: expected (frames, markers, 3) or "
-                    f"(frames, 3 x markers)")
+    if array.ndim != 3 or array.shape[2] not in (2, 3) or array.shape[1] == 0:
+        _fail(path, f"wrong array shape {array.shape}: expected (frames, markers, 3), "
+                    f"(frames, 3 x markers) or (frames, keypoints, 2)")
     if array.shape[0] == 0:
         _fail(path, "no frames")
     points = np.array(array, dtype=np.float64)
@@ -226,8 +227,8 @@ def write(seq: MarkerSequence, path, *, layout: str = "tj3") -> None:
     (points, labels, rate, units) or ``.csv`` (a header row ``LABEL_x,LABEL_y,LABEL_z,...``, then
     one row per frame, ``NaN`` for missing, shortest round-trip decimals), atomically."""
     path = Path(path)
-    check_writable(seq, path)
     suffix = path.suffix.lower()
+    check_writable(seq, path, (2, 3) if suffix in (".npy", ".npz") else (3,))
     points = seq.points
     if suffix == ".npy":
         if layout not in ("tj3", "t3j"):

@@ -15,7 +15,7 @@ from typing import Any
 
 KNOWN_KEYS = {"name", "base", "description", "data_dir", "results_dir", "recordings", "training",
               "frames", "segments", "protocol", "grid", "seeds", "methods", "metrics", "table",
-              "references", "plots", "showcase", "device", "dtype", "log"}
+              "references", "plots", "showcase", "device", "dtype", "log", "projection"}
 DEFAULT_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
 #: Keys whose relative paths are resolved against the folder of the config file that sets them.
 PATH_KEYS = ("data_dir", "results_dir")
@@ -78,6 +78,7 @@ class Config:
     device: str = "cpu"
     dtype: str = "float64"
     log: bool = True
+    projection: str | None = None      # "side_view": 2-D side views of the recordings
     raw: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -184,6 +185,8 @@ def load_config(path) -> Config:
     keys = (["segment"] if segments else []) + list(grid)
     table = _table(raw.get("table"), keys, metric_names, bad)
     references = _references(raw.get("references"), table, bad)
+    if raw.get("projection") not in (None, "side_view"):
+        raise bad(f"projection expected 'side_view' or none, found {raw.get('projection')!r}")
     _check_files(data_dir, recordings + training, "recording", bad)
     for m in methods:
         own = m.params.get("training")
@@ -199,7 +202,8 @@ def load_config(path) -> Config:
                   training=training, frames=frames, segments=segments, references=references,
                   skipped=skipped, plots=dict(raw.get("plots") or {}),
                   showcase=dict(raw.get("showcase") or {}), device=str(raw.get("device", "cpu")),
-                  dtype=str(raw.get("dtype", "float64")), log=bool(raw.get("log", True)), raw=raw)
+                  dtype=str(raw.get("dtype", "float64")), log=bool(raw.get("log", True)),
+                  projection=raw.get("projection"), raw=raw)
 
 
 def _grid(grid, bad) -> dict[str, list]:

@@ -43,20 +43,24 @@ class Recording:
         return text
 
 
-def read_sequence(path: Path) -> MarkerSequence:
-    """The recording at ``path``, through ``torchfill.read``."""
+def read_sequence(path: Path, projection: str | None = None) -> MarkerSequence:
+    """The recording at ``path``, through ``torchfill.read``; ``projection="side_view"`` gives its
+    2-D side view (:func:`torchfill.projection.side_view`)."""
     from .. import io
+    from ..projection import side_view
 
-    return io.read(path)
+    seq = io.read(path)
+    return side_view(seq) if projection == "side_view" else seq
 
 
 @functools.lru_cache(maxsize=16)
-def load_recording(path: Path, frames: tuple[int, int] | None = None) -> Recording:
+def load_recording(path: Path, frames: tuple[int, int] | None = None,
+                   projection: str | None = None) -> Recording:
     """Read ``path`` and keep the markers observed in every frame (of ``frames``, if given)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: recording not found")
-    seq = read_sequence(path)
+    seq = read_sequence(path, projection)
     points = seq.points if frames is None else seq.points[frames[0]:frames[1]]
     complete = np.isfinite(points).all(axis=(0, 2))
     labels = seq.short_labels()
@@ -93,16 +97,16 @@ def cut_segment(rec: Recording, length: int, count: int, index: int) -> tuple[Re
 
 
 @functools.lru_cache(maxsize=16)
-def _read_cached(path: Path) -> MarkerSequence:
-    return read_sequence(path)
+def _read_cached(path: Path, projection: str | None = None) -> MarkerSequence:
+    return read_sequence(path, projection)
 
 
-def align_training(path: Path, labels: list[str]) -> np.ndarray:
-    """A training recording as ``(T_i, J, 3)`` with its markers in the order of ``labels`` (short
+def align_training(path: Path, labels: list[str], projection: str | None = None) -> np.ndarray:
+    """A training recording as ``(T_i, J, D)`` with its markers in the order of ``labels`` (short
     labels of the test recording); a marker it lacks is NaN throughout. A new array every call."""
-    seq = _read_cached(Path(path))
+    seq = _read_cached(Path(path), projection)
     index = {label: j for j, label in enumerate(seq.short_labels())}
-    out = np.full((seq.n_frames, len(labels), 3), np.nan)
+    out = np.full((seq.n_frames, len(labels), seq.points.shape[2]), np.nan)
     for j, label in enumerate(labels):
         if label in index:
             out[:, j] = seq.points[:, index[label]]

@@ -87,7 +87,7 @@ def case_data(cfg: Config, recording: str, point, seed: int):
     ``i``'s masks use seed ``1000 i + seed``."""
     from .data import cut_segment, load_recording, make_mask
 
-    rec = load_recording(cfg.recording_path(recording), cfg.frames)
+    rec = load_recording(cfg.recording_path(recording), cfg.frames, cfg.projection)
     point, rest = dict(point), None
     if "segment" in point:
         index = point.pop("segment")
@@ -137,7 +137,8 @@ def _training_params(cfg: Config, case: Case, labels, rest) -> dict:
         params["training"] = [part.copy() for part in rest]
     elif names is not None:
         names = [names] if isinstance(names, str) else names
-        params["training"] = [align_training(cfg.recording_path(n), labels) for n in names]
+        params["training"] = [align_training(cfg.recording_path(n), labels, cfg.projection)
+                              for n in names]
     return params
 
 
@@ -359,7 +360,7 @@ def _check_recordings(cfg: Config) -> list[str]:
     notes = []
     for name in cfg.recordings:
         try:
-            rec = load_recording(cfg.recording_path(name), cfg.frames)
+            rec = load_recording(cfg.recording_path(name), cfg.frames, cfg.projection)
         except ValueError as err:
             raise ValueError(f"{cfg.path.name}: {' '.join(str(err).split())}") from None
         notes.append(rec.note())

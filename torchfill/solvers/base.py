@@ -292,6 +292,12 @@ class Solver(nn.Module):
         self._initialize()
         return self
 
+    def require_3d(self, why: str) -> None:
+        """Refuse data that are not 3-D markers ``(T, J, 3)`` (e.g. 2-D keypoints), saying why."""
+        if self.M_.ndim != 3 or self.M_.shape[2] != 3:
+            raise ValueError(f"{self.name}: expected 3-D markers (T, J, 3), found "
+                             f"{tuple(self.M_.shape)} ({why})")
+
     def interp_start(self, observed: Tensor | None = None, *, relative: bool = False) -> Tensor:
         """The one interpolation start: the normalized data with the gaps of ``observed`` (default
         ``Omega_``; a fit mask leaves held-out samples out too) linearly interpolated along time,

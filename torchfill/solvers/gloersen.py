@@ -96,13 +96,13 @@ def reconstruct(N: Tensor, Mz: Tensor, cols: Tensor, w: Tensor, min_cum_sv: floa
 
 def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, mm_weight: float,
                             distal_threshold: float, min_cum_sv: float, min_markers: int = 3) -> Tensor:
-    """R2 strategy on ``P`` (T, J, 3), ``missing`` (T, J): every gap filled; observed kept.
+    """R2 strategy on ``P`` (T, J, d), ``missing`` (T, J): every gap filled; observed kept.
 
     ``weight_scale`` is relative to the mean distance between markers (the original's 200 mm
     over the ~700 mm of a full-body set is 0.28). A marker whose gaps leave fewer than
     ``min_markers`` other markers to reconstruct from (the original maps from as few as one, and
     jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead."""
-    T, J, _ = P.shape
+    T, J, d = P.shape                       # d = 3 (markers) or 2 (image keypoints)
     out = P.clone()
     gapped = torch.nonzero(missing.any(0)).flatten()
     if len(gapped) == 0:
@@ -112,7 +112,7 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
     D = mean_distances(Y, gapped)                                          # (G, J)
     scale = weight_scale * D[D > 0].mean() if bool((D > 0).any()) else torch.ones((), dtype=P.dtype)
     lin = ops.interp_linear(torch.where(missing[..., None], 0.0, Y).reshape(T, -1),
-                            (~missing).repeat_interleave(3, dim=1)).reshape(T, J, 3)
+                            (~missing).repeat_interleave(d, dim=1)).reshape(T, J, d)
     for g, i in enumerate(gapped.tolist()):
         frames = missing[:, i]
         drop = missing.any(0) & (D[g] > distal_threshold * D[g].mean())    # distal gapped markers
@@ -128,8 +128,8 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
         Z = torch.where(torch.isfinite(Z), Z, torch.zeros((), dtype=P.dtype))
         w = torch.exp(-D[g] ** 2 / (2 * scale ** 2))
         w[i] = mm_weight
-        w = torch.where(drop, torch.ones_like(w), w).repeat_interleave(3)
-        cols = torch.arange(3 * i, 3 * i + 3, device=P.device)
+        w = torch.where(drop, torch.ones_like(w), w).repeat_interleave(d)
+        cols = torch.arange(d * i, d * i + d, device=P.device)
         Mz = Z[frames].clone()
         Mz[:, cols] = 0
         out[frames, i] = reconstruct(Z[train], Mz, cols, w, min_cum_sv) + c[frames]

@@ -13,7 +13,7 @@ Two one-shot solvers (``step()`` does the whole fill, like the interpolation bas
 
 Training data
 -------------
-The hyperparameter ``training`` is a list of arrays/tensors ``(T_i, J, 3)`` whose markers are those
+The hyperparameter ``training`` is a list of arrays/tensors ``(T_i, J, D)`` whose markers are those
 of the data given to ``fit`` (same J, same order; ``torchfill.fill`` aligns MarkerSequences by
 label). Only complete frames (every marker observed) are used. ``training=None`` uses the complete
 frames (complete stretches, for the temporal eigenspace) of the recording itself: the paper's
@@ -111,17 +111,18 @@ def complete_runs(item: Tensor) -> list[tuple[int, int]]:
     return [(a, b) for _, a, b in ops.runs(ok[:, None])]
 
 
-def check_training(training, J: int, owner: str, *, dtype, device) -> list[Tensor]:
-    """Training items as tensors ``(T_i, J, 3)`` of the data's dtype/device; expected vs found."""
+def check_training(training, J: int, owner: str, *, dtype, device, D: int = 3) -> list[Tensor]:
+    """Training items as tensors ``(T_i, J, D)`` of the data's dtype/device; expected vs found."""
     items = []
     for i, item in enumerate(training):
         item = torch.as_tensor(item)
-        if item.ndim != 3 or item.shape[1:] != (J, 3):
-            raise ValueError(f"{owner}: training[{i}] expected shape (T, {J}, 3) (the markers of the "
-                             f"data, in the same order), found {tuple(item.shape)}")
+        if item.ndim != 3 or item.shape[1:] != (J, D):
+            raise ValueError(f"{owner}: training[{i}] expected shape (T, {J}, {D}) (the markers of "
+                             f"the data, in the same order), found {tuple(item.shape)}")
         items.append(item.to(dtype=dtype, device=device))
     if not items:
-        raise ValueError(f"{owner}: training expected a non-empty list of (T, {J}, 3) arrays, found []")
+        raise ValueError(f"{owner}: training expected a non-empty list of (T, {J}, {D}) arrays, "
+                         "found []")
     return items
 
 
@@ -150,19 +151,19 @@ def spatial_moments(rows: Tensor) -> tuple[int, Tensor, Tensor]:
     return rows.shape[0], rows.sum(dim=0), rows.T @ rows
 
 
-def centring_map(observed: Tensor, centre: bool) -> Tensor:
-    """``L`` (3J x 3J): ``x L`` subtracts from every marker the centroid of the observed markers.
+def centring_map(observed: Tensor, centre: bool, D: int = 3) -> Tensor:
+    """``L`` (DJ x DJ): ``x L`` subtracts from every marker the centroid of the observed markers.
 
-    ``observed`` is a bool (J,). With ``centre=False`` the identity.
+    ``observed`` is a bool (J,); ``D`` the coordinates per marker. With ``centre=False`` the identity.
     """
     J = observed.shape[0]
     dtype = torch.float64 if not observed.is_floating_point() else observed.dtype
-    eye = torch.eye(3 * J, dtype=dtype, device=observed.device)
+    eye = torch.eye(D * J, dtype=dtype, device=observed.device)
     if not centre:
         return eye
     o = observed.to(dtype) / observed.sum().clamp(min=1)
     E = torch.kron(torch.outer(o, torch.ones(J, dtype=dtype, device=observed.device)),
-                   torch.eye(3, dtype=dtype, device=observed.device))
+                   torch.eye(D, dtype=dtype, device=observed.device))
     return eye - E
 
 
@@ -174,13 +175,14 @@ def template_operator(n: int, s: Tensor, S: Tensor, observed: Tensor, *, varianc
     ``b^ = ((b L - m) D) K + m + b (I - L)``: ``L`` body-centres on the observed markers, ``m`` is
     the training mean in those coordinates, ``K = U(0) T U'`` (Eq. 4), ``D`` the template.
     """
-    L = centring_map(observed, centre).to(S.dtype)
+    D = S.shape[0] // observed.shape[0]                            # coordinates per marker
+    L = centring_map(observed, centre, D).to(S.dtype)
     m = (s @ L) / n
     C = L.T @ S @ L / n - torch.outer(m, m)                       # covariance of A L
     lam, U = _eigh_desc(C)
     r = rank if rank is not None else explained_rank(lam, variance)
     U = U[:, :min(r, U.shape[1])]                                  # common eigenspace U
-    d = observed.repeat_interleave(3).to(S.dtype)                  # diagonal of D
+    d = observed.repeat_interleave(D).to(S.dtype)                  # diagonal of D
     C0 = d[:, None] * C * d[None, :]                               # covariance of A(0) = A L D
     lam0, U0 = _eigh_desc(C0)
     r0 = min(U.shape[1], int((lam0 > rtol * lam0[0].clamp(min=1e-300)).sum()))
@@ -207,7 +209,7 @@ def spatial_fill(Y: Tensor, missing: Tensor, n: int, s: Tensor, S: Tensor, *, va
         L, m, K = template_operator(n, s, S, observed, variance=variance, rank=rank, centre=centre)
         idx = rows[inverse == g]
         b = Y[idx]
-        d = observed.repeat_interleave(3).to(Y.dtype)
+        d = observed.repeat_interleave(Y.shape[1] // observed.shape[0]).to(Y.dtype)
         est = ((b @ L - m) * d) @ K + m + (b - b @ L)             # Eq. 4, centroid added back
         out[idx] = torch.where(d.bool(), b, est)
     return out
@@ -342,10 +344,11 @@ class _PCA(Solver):
                     (S - torch.outer(s, mu) - torch.outer(mu, s) + n * torch.outer(mu, mu))
                     / self.sigma_ ** 2)
             where = "the training set"
-        need = max(3 * J, 10)
+        D = self.M_.shape[2]
+        need = max(D * J, 10)
         if n < need:
             raise ValueError(f"{self.name}: {where} has {n} complete frames (every marker observed); "
-                             f"expected at least {need} (3 x {J} markers, or 10)")
+                             f"expected at least {need} ({D} x {J} markers, or 10)")
         if items is not None and self.self_share > 0:
             n, s, S = self._with_own_frames(n, s, S)
         return n, s, S
@@ -426,7 +429,8 @@ class _PCA(Solver):
         training = self.fit_data_.get("training", self.training)
         if training is not None:
             self.training_items_ = check_training(training, self.M_.shape[1], self.name,
-                                                  dtype=self.M_.dtype, device=self.M_.device)
+                                                  dtype=self.M_.dtype, device=self.M_.device,
+                                                  D=self.M_.shape[2])
             self.training_key_ = (_fingerprint(self.training_items_), str(self.M_.dtype),
                                   str(self.M_.device))
 
@@ -442,7 +446,7 @@ class PCATrain(_PCA):
     -----
     On the hyperparameters (declared in Parameters above):
 
-    training : list of (T_i, J, 3) arrays, optional
+    training : list of (T_i, J, D) arrays, optional
         Complete motion with the data's markers in order (see the module notes); None = the complete
         frames of the recording itself.
     variance : float
@@ -484,7 +488,7 @@ class PCATrain(_PCA):
     }
 
     def step(self) -> dict[str, float]:
-        T, J = self.M_.shape[:2]
+        T, J, D = self.M_.shape
         missing = ~self.Omega_.all(dim=2)
         Y = self.M_.reshape(T, -1)
         full = missing.all(dim=1)
@@ -498,7 +502,7 @@ class PCATrain(_PCA):
             runs = [(a, b, j) for j, a, b in ops.runs(missing)]
             runs = [r for r in runs if not bool(missing[r[0]:r[1]].all())]
             out = self._temporal_fill_runs(
-                Y, runs, lambda j: slice(3 * j, 3 * j + 3), lambda j: ~missing[:, j],
+                Y, runs, lambda j: slice(D * j, D * j + D), lambda j: ~missing[:, j],
                 self.window, None)
         out = torch.where(full[:, None], self.X_.reshape(T, -1), out)  # blackouts: linear
         self.X_ = torch.where(self.Omega_.reshape(T, -1), Y, out).reshape(self.M_.shape)

@@ -379,6 +379,7 @@ class _Tits(Solver):
     }
 
     def _initialize(self) -> None:
+        self.require_3d("the local models work in the frame of three markers")
         self.X_ = self.interp_start()
 
     def step(self) -> dict[str, float]:

@@ -238,8 +238,7 @@ class Rigid(Solver):
     }
 
     def _initialize(self) -> None:
-        if self.M_.ndim != 3 or self.M_.shape[2] != 3:
-            raise ValueError(f"rigid: expected data of shape (T, J, 3), found {tuple(self.M_.shape)}")
+        self.require_3d("rigid bodies move in 3-D; a 2-D projection is not rigid")
         self.X_ = self.M_.clone()
 
     def step(self) -> dict[str, float]:
