@@ -61,3 +61,29 @@ def shifted_gap_holdout(Omega: Tensor, generator: torch.Generator, max_share: fl
     if not bool(V.any()):
         return None
     return V.reshape(V.shape + (1,) * (Omega.ndim - 2)).expand_as(Omega) & Omega
+
+
+def _edge_runs(gaps: Tensor) -> Tensor:
+    """The part of ``gaps`` (T, J) that touches the first or the last frame."""
+    head = torch.cumprod(gaps.to(torch.int8), dim=0).bool()
+    tail = torch.cumprod(gaps.flip(0).to(torch.int8), dim=0).bool().flip(0)
+    return head | tail
+
+
+def mirrored_edge_holdout(Omega: Tensor) -> Tensor | None:
+    """Observed entries to hold out like the gaps at the trial ends: each marker's gap at the start
+    (end) mirrored onto its end (start), where the marker is observed up to that end.
+
+    Complements :func:`shifted_gap_holdout`, whose time shift moves trial-end gaps inside the
+    recording (interpolation) while the real ones are extrapolations. No marker loses more than
+    half of its observed samples. Returns a bool mask of ``Omega``'s shape, or None.
+    """
+    T = Omega.shape[0]
+    seen = Omega.reshape(T, Omega.shape[1], -1).all(dim=2)
+    if T < 10 or not bool(seen.any()):
+        return None
+    V = _edge_runs(_edge_runs(~seen).flip(0) & seen)
+    V = V & (V.sum(dim=0) <= 0.5 * seen.sum(dim=0))
+    if not bool(V.any()):
+        return None
+    return V.reshape(V.shape + (1,) * (Omega.ndim - 2)).expand_as(Omega) & Omega
