@@ -62,9 +62,13 @@ def _cmd_fill(args) -> int:
     method = args.method or torchfill.default_method()
     n_missing = int(seq.mask.sum())
     _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
-    filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args), **params)
+    filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
+                            return_std=bool(args.std), **params)
+    filled = filled[0] if args.std else filled
     _clear_progress(args)
     torchfill.write(filled, out_path)
+    if args.std:
+        _write_std(filled, Path(args.std))
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
@@ -149,6 +153,14 @@ def _cmd_experiment(args) -> int:
 
 
 # -- helpers ---------------------------------------------------------------------------------------
+def _write_std(seq, path: Path) -> None:
+    """The error estimate (T, J) as CSV: a frame column, one column per marker, NaN where observed."""
+    std = seq.meta["std"]
+    table = np.column_stack([np.arange(std.shape[0]), std])
+    np.savetxt(path, table, delimiter=",", fmt="%.6g", comments="",
+               header=",".join(["frame", *seq.labels]))
+
+
 def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
 
@@ -232,6 +244,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200")
+    p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
+                   "sample (frames x markers, data units, NaN where observed)")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(run=_cmd_fill)
 

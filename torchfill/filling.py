@@ -12,6 +12,7 @@ import torch
 from .metrics import gap_runs
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
+from .solvers.auto import holdout_std
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
 DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
@@ -31,7 +32,7 @@ def default_method() -> str:
 
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         progress: Callable[[dict], None] | None = None, **params):
+         progress: Callable[[dict], None] | None = None, return_std: bool = False, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -46,6 +47,11 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Gaps longer than this many frames are left unfilled (NaN).
     progress : callable, optional
         Called with each iteration's diagnostics (a dict from the solver's ``history_``).
+    return_std : bool
+        Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
+        each filled sample, in the data's units, NaN where observed (``auto`` estimates it from its
+        hold-outs; other methods get their held-out error on gaps of each kind, one extra fit; see
+        torchfill/solvers/auto.py). A MarkerSequence also carries it as ``meta["std"]``.
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -56,6 +62,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     The same kind as ``data`` (a new object): a MarkerSequence, an ndarray, or a tensor on the same
     device and of the same dtype. Wherever the input was finite (and not masked), the output is the
     input bit-for-bit. Markers never observed stay NaN, with an :class:`UnfilledWarning`.
+    With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
+    MarkerSequence).
     """
     method = method or default_method()
     if max_gap is not None and max_gap < 0:
@@ -79,6 +87,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
                       UnfilledWarning, stacklevel=2)
     todo = missing & ~never
     info = {"method": method, "n_iter": 0, "seconds": 0.0}
+    std = torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
         if params.get("training") is not None:
@@ -92,9 +101,22 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         part = out[:, keep]
         part = torch.where(todo[:, keep, None] & ~torch.isfinite(part), filled.to(out.dtype), part)
         out[:, keep] = part
+        if return_std:
+            est = getattr(solver, "std_", None)
+            if est is None:
+                est = holdout_std(method, params, Xk, missing[:, keep], seed=solver.seed)
+            std[:, keep] = torch.where(todo[:, keep], est.to(std), std[:, keep])
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
-    return _as_kind(out, kind, data, info)
+    if not return_std:
+        return _as_kind(out, kind, data, info)
+    std = torch.where(torch.isfinite(out).all(dim=2) & missing, std, float("nan"))
+    result = _as_kind(out, kind, data, info)
+    if kind == "tensor":
+        return result, std
+    if kind == "sequence":
+        result.meta["std"] = std.cpu().numpy()
+    return result, std.cpu().numpy()
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:

@@ -5,7 +5,7 @@ from .base import Param, Solver, available, get_solver, register
 
 # One module per family; each registers its methods on import. (Modules not written yet are
 # skipped while the families land in parallel; see the issues.)
-for _module in ("interp", "matrix", "pca", "tucker", "cp", "autograd"):
+for _module in ("interp", "matrix", "pca", "tucker", "cp", "autograd", "auto"):
     try:
         import_module(f"{__name__}.{_module}")
     except ModuleNotFoundError as _err:
