@@ -42,7 +42,7 @@ from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 Tensor = torch.Tensor
 
 #: Candidates tried by default, in this order; names not registered (yet) are skipped.
-DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "smooth_cp", "tucker_tnn",
+DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
                       "rigid", "pma", "pca_gloersen")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
