@@ -4,8 +4,10 @@ Cases (the kinds of issue #14, built with torchfill.gaps and the small generator
 HDM05 multi-gap (Tucker paper protocol), CMU shared windows of 10/20/30 of 41 markers (CP paper
 protocol), dense clustered occlusions where every marker has a gap, a shared window on the most
 still stretch, a whole-frame blackout, and gaps at the trial ends. Masks from the MATLAB reference
-run (``--masks /work/ref/masks``: ``*.npz`` with ``mask`` (T, J) and ``source``) are used instead
-when given.
+suite (``--masks /work/ref/masks``, written by scripts/mask_suite.py of branch i12-ref) are used
+instead when given, with the MATLAB PMA / Gloersen fills of that run (``--ref``, default
+/work/ref/out, ``<case>__pma.npz``) scored beside (columns refreshed on every run, ``--resume``
+included, so a later run picks up reference fills that finished since).
 
 Prints per case the RMSE over all entries (Tucker/CP papers' convention, mm) of every method and of
 ``auto``, then the summary the issue asks for, and the error estimate's checks: Spearman rank
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import time
 import warnings
 from pathlib import Path
@@ -117,6 +120,31 @@ def per_gap(filled: np.ndarray, std: np.ndarray, truth: np.ndarray, mask: np.nda
             for j, a, b in gap_runs(mask)]
 
 
+def mask_suite(folder: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(case, truth, mask) of every case written by scripts/mask_suite.py, in cases.json order."""
+    order = [c["name"] for c in json.loads((folder / "cases.json").read_text())]
+    out = []
+    for name in order:
+        with np.load(folder / f"{name}.npz") as z:
+            out.append((name, np.array(z["truth"]), np.array(z["mask"])))
+    return out
+
+
+def reference_rmse(folder: Path | None, case: str, truth: np.ndarray, mask: np.ndarray) -> dict:
+    """RMSE of the MATLAB reference fills ``<case>__pma.npz`` / ``__gloersen.npz`` (from the
+    i12-ref run) where present; NaN where that code left samples unfilled or failed."""
+    row = {}
+    for tag in ("pma", "gloersen"):
+        path = folder / f"{case}__{tag}.npz" if folder else None
+        if path is None or not path.exists():
+            continue
+        with np.load(path, allow_pickle=True) as z:
+            filled, ok = np.array(z["filled"]), bool(z["ok"])
+        done = ok and filled.shape == truth.shape and np.isfinite(filled[mask]).all()
+        row[f"matlab_{tag}"] = rmse(filled, truth, mask) if done else float("nan")
+    return row
+
+
 def std_checks(filled: np.ndarray, std: np.ndarray, truth: np.ndarray, mask: np.ndarray):
     """(Spearman of per-gap mean std vs per-gap RMS error, share within 2 sqrt(3) std)."""
     err = np.linalg.norm(filled - truth, axis=2)
@@ -177,6 +205,9 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--cases", nargs="*", help="only these case names")
     parser.add_argument("--combine", default="average", choices=("average", "select"))
+    parser.add_argument("--masks", type=Path, help="use the cases of scripts/mask_suite.py in DIR")
+    parser.add_argument("--ref", type=Path, default=Path("/work/ref/out"),
+                        help="MATLAB reference fills <case>__pma.npz etc. (columns when present)")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     methods = [m for m in SINGLES if m in torchfill.methods()]
@@ -189,11 +220,15 @@ def main() -> None:
     if not args.resume:
         path.with_name(path.stem + "_gaps.csv").unlink(missing_ok=True)
     names = {r["case"] for r in done}
-    for case, name, frames, make in suite():
+    if args.masks:
+        cases = [(case, P, mask) for case, P, mask in mask_suite(args.masks)]
+    else:
+        cases = [(case, (P := complete(name, frames)), make(P))
+                 for case, name, frames, make in suite()]
+    for case, P, mask in cases:
         if case in names or (args.cases and case not in args.cases):
             continue
-        P = complete(name, frames)
-        row, gap_rows = run_case(case, P, make(P), methods, {"combine": args.combine})
+        row, gap_rows = run_case(case, P, mask, methods, {"combine": args.combine})
         rows.append(row)
         with open(path.with_name(path.stem + "_gaps.csv"), "a", newline="") as f:
             csv.writer(f).writerows(gap_rows)
@@ -206,7 +241,23 @@ def main() -> None:
             writer = csv.DictWriter(f, fieldnames=keys)
             writer.writeheader()
             writer.writerows(rows)
+    if args.masks and args.ref.is_dir():
+        truth = {case: (P, mask) for case, P, mask in cases}
+        for r in rows:
+            r.update(reference_rmse(args.ref, r["case"], *truth[r["case"]]))
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        with open(path, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
     print(summary(rows, methods))
+    for tag in ("matlab_pma", "matlab_gloersen"):
+        both = [r for r in rows if np.isfinite(float(r.get(tag, "nan")))]
+        if both:
+            print(f"{tag}: filled {len(both)} of {len(rows)} cases; on those, mean {tag} "
+                  f"{np.mean([float(r[tag]) for r in both]):.2f} vs auto "
+                  f"{np.mean([float(r['auto']) for r in both]):.2f}; auto better on "
+                  f"{sum(float(r['auto']) < float(r[tag]) for r in both)}")
     gaps_path = path.with_name(path.stem + "_gaps.csv")
     if gaps_path.exists():
         table = np.genfromtxt(gaps_path, delimiter=",", usecols=(4, 5))
