@@ -15,7 +15,7 @@ from .solvers import available, get_solver
 from .solvers.auto import holdout_std
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
-DEFAULT_METHODS = ("auto", "tucker_tnn", "tucker", "pchip")
+DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
 
 
 class UnfilledWarning(UserWarning):
