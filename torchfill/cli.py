@@ -93,9 +93,12 @@ def _cmd_fill(args) -> int:
     _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
     with _naming(args.input):
         filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                constraints=args.constraints, **params)
+                                constraints=args.constraints, return_std=bool(args.std), **params)
+    filled = filled[0] if args.std else filled
     _clear_progress(args)
     torchfill.write(filled, out_path)
+    if args.std:
+        _write_std(filled, Path(args.std))
     if args.report:
         _write_report(seq, filled, Path(args.report), str(args.input))
     info = filled.meta["fill_info"]
@@ -289,6 +292,16 @@ def _naming(path):
         raise ValueError(f"{path}: {_one_line(err)}") from None
 
 
+def _write_std(seq, path: Path) -> None:
+    """The error estimate (T, J) as CSV: a frame column, one column per marker, NaN where observed."""
+    import numpy as np
+
+    std = seq.meta["std"]
+    table = np.column_stack([np.arange(std.shape[0]), std])
+    np.savetxt(path, table, delimiter=",", fmt="%.6g", comments="",
+               header=",".join(["frame", *seq.labels]))
+
+
 def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
 
@@ -411,6 +424,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-constraints", dest="constraints", action="store_false",
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
+    p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
+                   "sample (frames x markers, data units, NaN where observed)")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)

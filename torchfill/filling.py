@@ -14,6 +14,7 @@ from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
+from .solvers.auto import holdout_std
 
 #: Gaps longer than this (seconds) filled without rigid donors are named in a warning.
 LONG_GAP_SECONDS = 10.0
@@ -37,7 +38,8 @@ def default_method() -> str:
 
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
          window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
-         constraints: bool = True, extrapolate: float | None = 0.25, **params):
+         constraints: bool = True, extrapolate: float | None = 0.25, return_std: bool = False,
+         **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -67,6 +69,12 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         Seconds a gap touching a trial end may be extrapolated without rigid donors (default
         0.25 s); the rest is left NaN with a warning. Needs the rate of a MarkerSequence: arrays
         and tensors have no limit. None: no limit. Only with ``constraints``.
+    return_std : bool
+        Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
+        each filled sample, in the data's units, NaN where observed or left unfilled (``auto``
+        estimates it from its hold-outs; other methods get their held-out error on gaps of each
+        kind, one extra fit; see torchfill/solvers/auto.py). A MarkerSequence also carries it as
+        ``meta["std"]``.
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -77,6 +85,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     The same kind as ``data`` (a new object): a MarkerSequence, an ndarray, or a tensor on the same
     device and of the same dtype. Wherever the input was finite (and not masked), the output is the
     input bit-for-bit. Markers never observed stay NaN, with an :class:`UnfilledWarning`.
+    With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
+    MarkerSequence).
     """
     method = default_method() if method is None else method
     if not isinstance(method, str) or not method.strip():
@@ -110,6 +120,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
                       UnfilledWarning, stacklevel=2)
     todo = missing & ~never
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0}
+    std = torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
         extra = {}
@@ -119,9 +130,13 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         del points                      # long recordings: hold as few full-length copies as we can
         plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
+        stds = {} if return_std else None
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info))
+            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info, stds, (a, b)))
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
+        if return_std:
+            part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
+            std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
         del Xk
         whole = len(keep) == out.shape[1]
         part = out if whole else out[:, keep]
@@ -133,7 +148,15 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate)
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
-    return _as_kind(out, kind, data, info, missing)
+    result = _as_kind(out, kind, data, info, missing)
+    if not return_std:
+        return result
+    std = torch.where(torch.isfinite(out).all(dim=2) & missing, std, float("nan"))
+    if kind == "tensor":
+        return result, std
+    if kind == "sequence":
+        result.meta["std"] = std.cpu().numpy()
+    return result, std.cpu().numpy()
 
 
 #: An observed coordinate farther than this many spreads (median absolute deviation of all
@@ -172,13 +195,21 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
 
 
 def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
-                 progress: Callable[[dict], None] | None, info: dict) -> torch.Tensor:
+                 progress: Callable[[dict], None] | None, info: dict,
+                 stds: dict | None = None, key: tuple[int, int] = (0, 0)) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
-    steps (``auto``'s choice) belong here; the constraints run once, on the whole recording."""
+    steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
+    ``stds``: a dict that receives the window's error estimate (T, J) under its frame range (the
+    solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
     solver = get_solver(method, **params)
     filled = solver.fit(X, missing, callback=progress, **extra).transform(X)
     info["n_iter"] += solver.n_iter_
+    if stds is not None:
+        est = getattr(solver, "std_", None)
+        if est is None:
+            est = holdout_std(method, params, X, missing, seed=solver.seed, **extra)
+        stds[key] = est.to(filled.dtype)
     return filled
 
 

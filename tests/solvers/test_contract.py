@@ -57,6 +57,7 @@ CHEAP = {
     "pca_blackout": {},                                  # no training data: the complete frames
     "grad_tucker": {"max_iter": 3, "rank": [3, 3, 3]},
     "grad_cp": {"max_iter": 3, "rank": 3},
+    "auto": {"candidates": ["pchip", "svt", "pca_train"]},
 }
 
 

@@ -6,7 +6,8 @@ from .base import NotConvergedWarning, Param, Solver, available, get_solver, reg
 # One module per family; each registers its methods on import. (Modules not written yet are
 # skipped while the families land in parallel; see the issues.)
 for _module in ("interp", "matrix", "pca", "tucker", "cp", "autograd", "completion", "spc",
-                "gloersen", "pma", "rigid"):
+                "gloersen", "pma", "rigid",
+                "auto"):
     try:
         import_module(f"{__name__}.{_module}")
     except ModuleNotFoundError as _err:

@@ -1,0 +1,134 @@
+"""``auto``: per-gap choice of methods from hold-outs of observed data, and its error estimate.
+
+On real recordings with simulated gaps (skipped without ../shared/data): auto is never much worse
+than the best of its candidates, and the error estimate is calibrated (real 3-D error within
+2 sqrt(3) std for most filled samples, per-gap ranking). Every input kind returns (filled, std).
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import spearmanr
+
+import torchfill
+from torchfill import gaps
+from torchfill.cli import main
+from torchfill.metrics import gap_runs, rmse
+from torchfill.solvers import get_solver
+from torchfill.solvers.auto import gap_kind, run_geometry
+
+CANDIDATES = ("pchip", "pca_train", "svt", "tucker_tnn")
+
+
+def _walk(T=150, J=6, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 3, T)[:, None, None]
+    phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
+    return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
+
+
+def _gappy():
+    X = _walk()
+    X[40:70, 1] = np.nan
+    X[100:110, 3] = np.nan
+    X[:12, 4] = np.nan
+    return X
+
+
+def _real(recording, name, frames=None):
+    P = torchfill.read(recording(name)).points
+    P = P[:frames] if frames else P
+    return P[:, np.isfinite(P).all(axis=2).all(axis=0)]
+
+
+def test_run_geometry_distance_length_and_trial_end():
+    missing = torch.zeros(12, 2, dtype=torch.bool)
+    missing[3:8, 0] = True                    # interior gap of 5
+    missing[9:, 1] = True                     # gap at the end, 3 frames
+    d, L, edge = run_geometry(missing)
+    assert d[3:8, 0].tolist() == [1, 2, 3, 2, 1]
+    assert L[3:8, 0].tolist() == [5] * 5 and L[9:, 1].tolist() == [3] * 3
+    assert d[9:, 1].tolist() == [1, 2, 3]     # one observed side only
+    assert not bool(edge[:, 0].any()) and bool(edge[9:, 1].all())
+    assert int(d[~missing].abs().sum()) == 0 and not bool(edge[~missing].any())
+    kind = gap_kind(L, edge, torch.zeros_like(edge))
+    assert kind[9, 1] % 2 == 1 and kind[3, 0] % 2 == 0
+
+
+@pytest.mark.parametrize("kind", ["array", "tensor", "sequence"])
+def test_return_std_for_every_input_kind(kind):
+    X = _gappy()
+    missing = np.isnan(X).any(axis=2)
+    data = {"array": X, "tensor": torch.from_numpy(X),
+            "sequence": torchfill.MarkerSequence(points=X, labels=[f"M{j}" for j in range(6)],
+                                                 rate=100.0, units="mm")}[kind]
+    out, std = torchfill.fill(data, method="auto", return_std=True, candidates=["pchip", "svt"])
+    std = std.numpy() if kind == "tensor" else std
+    points = out.points if kind == "sequence" else np.asarray(out)
+    assert std.shape == missing.shape
+    assert np.isnan(std[~missing]).all() and np.isfinite(std[missing]).all() and (std[missing] > 0).all()
+    np.testing.assert_array_equal(points[~missing], X[~missing])     # observed unchanged
+    if kind == "sequence":
+        np.testing.assert_array_equal(out.meta["std"], std, strict=True)
+
+
+def test_return_std_for_a_method_without_its_own():
+    X = _gappy()
+    missing = np.isnan(X).any(axis=2)
+    plain = torchfill.fill(X, method="pchip")
+    out, std = torchfill.fill(X, method="pchip", return_std=True)
+    np.testing.assert_array_equal(out, plain)                         # the fill is the method's
+    assert np.isfinite(std[missing]).all() and np.isnan(std[~missing]).all()
+
+
+def test_cli_writes_std_csv(tmp_path):
+    X = _gappy()
+    path = tmp_path / "trial.npz"
+    np.savez(path, points=X, labels=np.array([f"M{j}" for j in range(6)]), rate=100.0, units="mm")
+    out, std_path = tmp_path / "filled.npz", tmp_path / "std.csv"
+    assert main(["fill", str(path), "-o", str(out), "-m", "auto", "-q", "--std", str(std_path),
+                 "-p", 'candidates=["pchip","svt"]']) == 0
+    table = np.genfromtxt(std_path, delimiter=",", names=True)
+    assert table.dtype.names[0] == "frame" and len(table) == X.shape[0]
+    S = np.column_stack([table[n] for n in table.dtype.names[1:]])
+    missing = np.isnan(X).any(axis=2)
+    assert np.isfinite(S[missing]).all() and np.isnan(S[~missing]).all()
+
+
+def test_unknown_candidate_is_an_error():
+    with pytest.raises(ValueError, match="candidates expected"):
+        get_solver("auto", candidates=["pchip", "not_a_method"])
+
+
+def test_auto_never_much_worse_than_its_best_candidate(recording):
+    """CMU 02_01, 20 of 41 markers hidden over one shared 50-frame window (CP paper protocol)."""
+    P = _real(recording, "cmu_02_01.c3d")
+    mask = gaps.shared_window(*P.shape[:2], n_markers=20, gap_length=50, seed=2)
+    X = np.where(mask[..., None], np.nan, P)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        single = {m: rmse(torchfill.fill(X, method=m), P, mask) for m in CANDIDATES}
+        out = torchfill.fill(X, method="auto", candidates=list(CANDIDATES))
+    np.testing.assert_array_equal(out[~mask], P[~mask])
+    assert rmse(out, P, mask) <= 1.5 * min(single.values()), (rmse(out, P, mask), single)
+
+
+def test_error_estimate_is_calibrated_on_a_held_out_fill(recording):
+    """HDM05, Tucker-paper multi-gap mask: the real 3-D error stays within 2 sqrt(3) std for at
+    least 80 % of the filled samples, and the per-gap std ranks the per-gap errors."""
+    P = _real(recording, "HDM_bd_01-02_01_120.c3d", 600)
+    mask = gaps.multi_gap(*P.shape[:2], n_markers=12, gap_length=60, max_gaps=3, seed=0)
+    X = np.where(mask[..., None], np.nan, P)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out, std = torchfill.fill(X, method="auto", return_std=True, constraints=False,
+                                  candidates=["pchip", "svt", "tucker_tnn"])
+    err = np.linalg.norm(out - P, axis=2)
+    assert np.mean(err[mask] <= 2 * np.sqrt(3) * std[mask]) >= 0.8
+    runs = gap_runs(mask)
+    real = [np.sqrt(np.mean(err[a:b, j] ** 2)) for j, a, b in runs]
+    est = [np.mean(std[a:b, j]) for j, a, b in runs]
+    assert spearmanr(real, est).statistic >= 0.5

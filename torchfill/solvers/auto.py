@@ -1,0 +1,382 @@
+"""``auto``: per gap, the candidate methods that fill gaps of that kind best on THIS recording, and
+an estimate of each filled sample's error.
+
+How (observed data only, never the ground truth of the gaps):
+
+1. One hold-out ``V`` of observed samples shaped like the recording's own gaps
+   (:func:`~torchfill.solvers.holdout.shifted_gap_holdout`: same markers, lengths and
+   simultaneity, moved in time) plus the trial-end gaps mirrored onto the other trial end
+   (:func:`~torchfill.solvers.holdout.mirrored_edge_holdout`), so extrapolation is scored on
+   extrapolation.
+2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
+   that fails on the recording (e.g. ``pca_train`` without enough complete frames) is dropped.
+3. Each gap (real or held out) gets a kind: at a trial end or inside, its length (``<= 20``,
+   ``<= 80``, longer frames), and whether it is fast (its frames move more than ``FAST`` times the
+   recording's median frame motion, measured on the markers seen there). Per kind, the candidates'
+   held-out mean squared errors give the weights of a weighted average (``combine="average"``:
+   inverse-MSE weights over the candidates within ``keep_ratio`` of the best, the model averaging
+   of Tits et al. 2018 with weights from held-out errors; ``"select"``: the best alone). A kind
+   with too few held-out samples borrows (see :func:`kind_weights`).
+4. The candidates that carry weight on a real gap are refitted on every observed sample, and the
+   real gaps get the weighted average of the refits (``refit=False``: of the hold-out fits, one
+   fit per candidate; on scripts/eval_auto.py that raised the mean RMSE from 5.05 to 5.72 mm and
+   the worst case from 1.4x to 4x the best single method).
+5. The error estimate ``std_`` (T, J): a log-linear model of the held-out squared error of the
+   combined fill on the sample's distance to the nearest observed frame, its gap's length,
+   trial-end status, the share of markers missing in its frame, the candidates' disagreement there,
+   the fill's departure from linear interpolation, the marker's observed speed and the gap's frame
+   motion; fitted on the held-out samples, scaled so that the mean ratio of squared error to
+   estimated variance there is 1, and grown in proportion to the motion beyond the 90th percentile
+   of the hold-out's motion (which the fit cannot see).
+
+References
+----------
+Tits, Tilmanne & Dutoit, "Robust and automatic motion-capture data recovery using soft skeleton
+constraints and model averaging", PLoS ONE 13(7): e0199744 (2018).
+"""
+from __future__ import annotations
+
+import warnings
+
+import torch
+
+from .. import ops
+from .base import Param, Solver, available, get_solver, register
+from .holdout import mirrored_edge_holdout, shifted_gap_holdout
+
+Tensor = torch.Tensor
+
+#: Candidates tried by default, in this order; names not registered (yet) are skipped.
+DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
+                      "rigid", "pma", "pca_gloersen")
+#: Errors that drop a candidate for this recording instead of failing the fill.
+FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
+#: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
+LENGTH_EDGES = (20, 80)
+#: A gap is "fast" when the frames it spans move this many times the recording's median frame
+#: motion (squared step): real occlusions cluster in fast phases, which a time-shifted hold-out
+#: mostly misses (ktk_tennis_serve_nan: real short gaps at 11x the median, held-out ones at 0.9x).
+FAST = 3.0
+#: A kind needs this many held-out samples before it gets its own weights.
+MIN_KIND_SAMPLES = 60
+
+
+def run_bounds(missing: Tensor) -> tuple[Tensor, Tensor]:
+    """Per sample of the (T, J) mask: the last observed frame before it (-1: none) and the next
+    observed frame after it (T: none)."""
+    T = missing.shape[0]
+    t = torch.arange(T, device=missing.device)[:, None].expand_as(missing)
+    obs = ~missing
+    prev = torch.cummax(torch.where(obs, t, -1), dim=0).values
+    nxt = T - 1 - torch.cummax(torch.where(obs, T - 1 - t, -1).flip(0), dim=0).values.flip(0)
+    return prev, torch.where(nxt > T - 1, torch.full_like(nxt, T), nxt)
+
+
+def run_geometry(missing: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Per sample of the (T, J) ``missing`` mask: distance in frames to the nearest observed frame
+    of its marker, the length of its gap, and whether its gap touches a trial end (0 / 0 / False
+    where observed)."""
+    T = missing.shape[0]
+    t = torch.arange(T, device=missing.device)[:, None].expand_as(missing)
+    prev, nxt = run_bounds(missing)
+    edge = (prev < 0) | (nxt >= T)
+    far = torch.full_like(t, 2 * T)
+    d = torch.minimum(torch.where(prev >= 0, t - prev, far), torch.where(nxt < T, nxt - t, far))
+    L = nxt - prev - 1
+    return (torch.where(missing, d.clamp(max=T), 0), torch.where(missing, L, 0),
+            edge & missing)
+
+
+def gap_kind(L: Tensor, edge: Tensor, fast: Tensor) -> Tensor:
+    """Kind index per sample: ``4 * length bucket + 2 * fast + trial end``."""
+    bucket = torch.zeros_like(L)
+    for e in LENGTH_EDGES:
+        bucket = bucket + (L > e).to(L.dtype)
+    return 4 * bucket + 2 * fast.to(L.dtype) + edge.to(L.dtype)
+
+
+def kind_name(k: int) -> str:
+    length = (LENGTH_EDGES + ("inf",))[k // 4]
+    return f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
+
+
+def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
+    """Per sample of a gap: the mean over its gap's frames of the frame motion (mean squared step
+    of the markers seen in both frames, ``Y`` (T, J, D)), over the recording's median frame motion;
+    0 where observed."""
+    T = missing.shape[0]
+    both = ~missing[1:] & ~missing[:-1]
+    step = torch.diff(Y, dim=0).pow(2).mean(dim=2)
+    m = torch.where(both, step, 0.0).sum(dim=1) / both.sum(dim=1).clamp(min=1)
+    has = both.any(dim=1)
+    m = ops.interp_linear(m[:, None], has[:, None])[:, 0] if bool(has.any()) else m
+    m = torch.cat([m, m[-1:]])
+    m = m / m.median().clamp(min=1e-12)
+    C = torch.cat([m.new_zeros(1), torch.cumsum(m, dim=0)])[:, None].expand(T + 1, missing.shape[1])
+    prev, nxt = run_bounds(missing)
+    total = C.gather(0, nxt) - C.gather(0, prev + 1)
+    return torch.where(missing, total / (nxt - prev - 1).clamp(min=1), 0.0)
+
+
+def kind_weights(err2: Tensor, kinds: Tensor, n_kinds: int, *, combine: str,
+                 keep_ratio: float) -> Tensor:
+    """Candidate weights per kind, (n_kinds, C), from held-out squared errors ``err2`` (C, N) of
+    samples of kind ``kinds`` (N,). A kind with too few held-out samples borrows: a fast kind from
+    the slow kind of the next longer length (more motion inside the gap either way), then from
+    all gaps of its trial-end status, then from all gaps."""
+    def weights(sel: Tensor) -> Tensor:
+        mse = err2[:, sel].mean(dim=1)
+        best = mse.min()
+        if combine == "select":
+            w = torch.zeros_like(mse)
+            w[int(mse.argmin())] = 1.0
+            return w
+        w = torch.where(mse <= keep_ratio * best, 1.0 / mse.clamp(min=1e-300), 0.0)
+        return w / w.sum()
+
+    def enough(sel: Tensor) -> bool:
+        return int(sel.sum()) >= MIN_KIND_SAMPLES
+
+    every = weights(torch.ones_like(kinds, dtype=torch.bool))
+    by_edge = {e: weights(kinds % 2 == e) if enough(kinds % 2 == e) else every for e in (0, 1)}
+    W = torch.empty(n_kinds, err2.shape[0], dtype=err2.dtype, device=err2.device)
+    for k in range(n_kinds):
+        chain = [k] + ([4 * b + k % 2 for b in range(k // 4 + 1, n_kinds // 4)] if k // 2 % 2 else [])
+        W[k] = next((weights(kinds == c) for c in chain if enough(kinds == c)), by_edge[k % 2])
+    return W
+
+
+def error_features(d: Tensor, L: Tensor, edge: Tensor, share: Tensor, spread2: Tensor,
+                   bend2: Tensor, speed2: Tensor, motion: Tensor) -> Tensor:
+    """Design matrix (..., 9) of the log-linear error model (see the module notes)."""
+    dtype = spread2.dtype
+    return torch.stack([torch.ones_like(spread2), torch.log(d.to(dtype)), torch.log(L.to(dtype)),
+                        edge.to(dtype), torch.log(share.to(dtype)), torch.log(spread2 + 1e-8),
+                        torch.log(bend2 + 1e-8), torch.log(speed2 + 1e-8),
+                        torch.log(motion + 1e-3)], dim=-1)
+
+
+def fit_error_model(F: Tensor, e2: Tensor, ridge: float = 1e-3) -> tuple[Tensor, float]:
+    """Least squares of ``log e2`` on the features ``F`` (ridge on the slopes), then the scale that
+    makes the mean of ``e2`` over the predicted variance 1. Returns (coefficients, log scale)."""
+    y = torch.log(e2 + 1e-10)
+    R = ridge * torch.eye(F.shape[1], dtype=F.dtype, device=F.device) * F.shape[0]
+    R[0, 0] = 0.0
+    beta = torch.linalg.solve(F.T @ F + R, F.T @ y)
+    log_scale = float(torch.log(torch.mean(e2 / torch.exp(F @ beta))))
+    return beta, log_scale
+
+
+@register
+class Auto(Solver):
+    """Per-gap choice and averaging of candidate methods from errors on gap-shaped hold-outs of
+    the observed data, with an error estimate per filled sample (``std_``).
+
+    Parameters
+    ----------
+    candidates : tuple of str, optional
+        Registered method names to try (default ``DEFAULT_CANDIDATES``, those registered).
+    candidate_params : dict, optional
+        Hyperparameters per candidate, ``{name: {param: value}}``.
+    combine : {"average", "select"}
+        Per gap kind, inverse-MSE weighted average of the near-best candidates, or the best alone.
+    keep_ratio : float
+        ``average``: candidates whose held-out MSE is within this factor of the best take part.
+
+    Attributes
+    ----------
+    std_ : Tensor (T, J)
+        Estimated standard deviation of each coordinate's error at each filled sample, in the
+        data's units; NaN where observed.
+    scores_ : dict
+        Held-out RMSE (normalized units, all held-out entries) per candidate that ran.
+    weights_ : dict
+        Per gap kind, the candidate weights used.
+    """
+
+    name = "auto"
+    iterative = False
+    fit_data = ("training",)
+    params = {
+        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
+        "candidates": Param(None, (tuple, list), allow_none=True,
+                            doc="method names to try (None: DEFAULT_CANDIDATES that are registered)"),
+        "candidate_params": Param(None, dict, allow_none=True,
+                                  doc="hyperparameters per candidate, {name: {param: value}}"),
+        "combine": Param("average", str, choices=("average", "select"),
+                         doc="per gap kind: inverse-MSE average of the near-best candidates, or "
+                             "the best alone (average: lower mean RMSE on scripts/eval_auto.py)"),
+        "refit": Param(True, bool,
+                       doc="refit the candidates that carry weight on all observed samples for the "
+                           "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
+        "keep_ratio": Param(1.5, float, low=1.0,
+                            doc="average: candidates within this factor of the best held-out MSE "
+                                "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
+                                "low-rank fill into a near-still window where spline is 2.4x better)"),
+    }
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        known = set(available())
+        for name in self.candidates or ():
+            if not isinstance(name, str) or name not in known or name == self.name:
+                raise ValueError(f"{self.name}: candidates expected registered method names "
+                                 f"other than 'auto', found {name!r}")
+        for name, p in (self.candidate_params or {}).items():
+            if not isinstance(p, dict):
+                raise ValueError(f"{self.name}: candidate_params expected {{name: dict}}, "
+                                 f"found {name!r}: {p!r}")
+
+    def candidate_names(self) -> list[str]:
+        if self.candidates is not None:
+            return list(self.candidates)
+        known = set(available())
+        return [name for name in DEFAULT_CANDIDATES if name in known]
+
+    # -- contract --------------------------------------------------------------------------
+    def _initialize(self) -> None:
+        self.X_ = self.interp_start()
+        T, J = self.M_.shape[:2]
+        self.std_ = torch.full((T, J), float("nan"), dtype=self.M_.dtype, device=self.M_.device)
+        self.scores_: dict[str, float] = {}
+        self.weights_: dict[str, dict[str, float]] = {}
+        self.dropped_: dict[str, str] = {}
+
+    def _estimate(self) -> Tensor:
+        return self.X_
+
+    def step(self) -> dict[str, float]:
+        seen = self.Omega_.reshape(self.M_.shape[0], self.M_.shape[1], -1).all(dim=2)
+        if bool(seen.all()):
+            return {"delta": 0.0}
+        V = self._holdout(seen)
+        fit_missing = ~seen | V
+        names, fills = self._run_candidates(fit_missing)
+        d, L, edge = run_geometry(fit_missing)
+        Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
+        motion = gap_motion(fit_missing, Xt)
+        kinds = gap_kind(L, edge, motion > FAST)
+        n_kinds = 4 * (len(LENGTH_EDGES) + 1)
+        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N) per coordinate
+        if err2.shape[1] == 0:                                      # nothing held out: plain mean
+            W = torch.full((n_kinds, len(names)), 1.0 / len(names), dtype=fills.dtype,
+                           device=fills.device)
+        else:
+            W = kind_weights(err2, kinds[V], n_kinds, combine=self.combine,
+                             keep_ratio=self.keep_ratio)
+        w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
+        if self.refit and bool(V.any()):
+            fills = self._refit(names, fills, w, ~seen)
+        mean = (w[..., None] * fills).sum(dim=0)
+        spread2 = self._spread2(fills, mean, err2)
+        share = fit_missing.to(fills.dtype).mean(dim=1, keepdim=True).expand_as(spread2)
+        lin = ops.interp_linear(Xt.reshape(Xt.shape[0], -1),                # V hidden too
+                                (~fit_missing[..., None]).expand_as(Xt).reshape(Xt.shape[0], -1)
+                                ).reshape(Xt.shape)
+        bend2 = ((mean - lin) ** 2).mean(dim=2)                     # motion the fill adds
+        step = torch.diff(Xt, dim=0).pow(2).mean(dim=2)
+        both = ~fit_missing[1:] & ~fit_missing[:-1]
+        speed2 = (torch.where(both, step, 0.0).sum(dim=0) / both.sum(dim=0).clamp(min=1)
+                  ).expand_as(spread2)
+        self.scores_ = {n: float(e.mean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
+        self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
+                         for k in range(n_kinds)}
+        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion),
+                      ((mean - Xt) ** 2).mean(dim=2))
+        est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
+        self.X_ = torch.where(self.Omega_, self.M_, est)
+        return {"delta": 0.0, "candidates": float(len(names))}
+
+    # -- pieces ----------------------------------------------------------------------------
+    def _holdout(self, seen: Tensor) -> Tensor:
+        """Held-out (T, J) samples: shifted gap pattern plus mirrored trial-end gaps."""
+        Omega3 = seen[..., None]
+        V = torch.zeros_like(seen)
+        for part in (shifted_gap_holdout(Omega3, self.generator_), mirrored_edge_holdout(Omega3)):
+            if part is not None:
+                V = V | part[..., 0]
+        keep = (V.sum(dim=0) <= 0.5 * seen.sum(dim=0)) & (seen.sum(dim=0) - V.sum(dim=0) >= 2)
+        return V & keep
+
+    def _fit_one(self, name: str, fit_missing: Tensor) -> Tensor:
+        """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3)."""
+        T, J = fit_missing.shape
+        X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
+        params = {"seed": self.seed, **(self.candidate_params or {}).get(name, {})}
+        solver = get_solver(name, **params)
+        data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
+                if k in solver.fit_data}                  # training data in the fit's units
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = solver.fit_transform(X, fit_missing, **data)
+        if not bool(torch.isfinite(out).all()):
+            raise ValueError("non-finite fill")
+        return out.to(self.M_.dtype)
+
+    def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:
+        """Each candidate fitted once with ``fit_missing`` hidden: names and fills (C, T, J, 3)."""
+        names, fills = [], []
+        for name in self.candidate_names():
+            try:
+                fills.append(self._fit_one(name, fit_missing))
+            except FAILURES as err:
+                self.dropped_[name] = str(err)
+                continue
+            names.append(name)
+        if not names:
+            raise ValueError(f"{self.name}: every candidate failed on this recording: "
+                             + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
+        return names, torch.stack(fills)
+
+    def _refit(self, names: list[str], fills: Tensor, w: Tensor, gaps: Tensor) -> Tensor:
+        """Fills of the real ``gaps`` from the candidates that carry weight there, refitted on all
+        observed samples (the hold-out fit stays where the refit fails)."""
+        fills = fills.clone()
+        for c, name in enumerate(names):
+            if not bool((w[c][gaps] > 0).any()):
+                continue
+            try:
+                fills[c] = torch.where(gaps[..., None], self._fit_one(name, gaps), fills[c])
+            except FAILURES:
+                pass
+        return fills
+
+    @staticmethod
+    def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
+        """(T, J) disagreement of all candidates with the combined fill, each weighted by its
+        inverse held-out MSE (so a poor candidate counts little)."""
+        if err2.numel():
+            v = 1.0 / err2.mean(dim=1).clamp(min=1e-12)
+        else:
+            v = torch.ones(fills.shape[0], dtype=fills.dtype, device=fills.device)
+        v = (v / v.sum())[:, None, None, None]
+        return (v * (fills - mean) ** 2).sum(dim=0).mean(dim=2)
+
+    def _fit_std(self, V: Tensor, seen: Tensor, features: tuple, e2: Tensor) -> None:
+        """Fit the error model on the held-out samples and predict it on the real gaps."""
+        gaps = ~seen
+        d, L, edge, share, spread2, bend2, speed2, motion = features
+        F_all = error_features(d.clamp(min=1), L.clamp(min=1), edge, share.clamp(min=1e-3),
+                               spread2, bend2, speed2, motion)
+        if int(V.sum()) >= 10:
+            beta, log_scale = fit_error_model(F_all[V], e2[V])
+            var = torch.exp(F_all[gaps] @ beta + log_scale)
+            # beyond the motion the hold-out saw, the error grows with the motion (not fitted)
+            high = torch.quantile(motion[V], 0.9).clamp(min=1e-12)
+            var = var * (motion[gaps] / high).clamp(min=1.0)
+        else:                                            # no hold-out: spread of the candidates
+            var = spread2[gaps] + 1e-8
+        std = torch.full_like(spread2, float("nan"))
+        std[gaps] = var.sqrt() * self.sigma_
+        self.std_ = std
+        self.error_model_ = None if int(V.sum()) < 10 else (beta, log_scale)
+
+
+def holdout_std(method: str, params: dict, X: Tensor, missing: Tensor, seed: int = 0,
+                **data) -> Tensor:
+    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
+    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
+    ``data``: the method's fit data (``training=``)."""
+    solver = Auto(candidates=(method,), candidate_params={method: dict(params)}, seed=seed)
+    solver.fit(X, missing, **data)
+    return solver.std_
