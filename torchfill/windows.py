@@ -62,8 +62,8 @@ def plan(missing: np.ndarray, window: int | None = WINDOW) -> Plan:
 
 
 def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tensor]) -> torch.Tensor:
-    """Fill every window with ``solve(start, stop)`` (a ``(stop - start, J, 3)`` tensor) and blend
-    the fills with :func:`weight`; one window's fill is held at a time. NaN where no window fills."""
+    """Fill every window with ``solve(start, stop)`` (a ``(stop - start, J, D)`` tensor) and blend
+    the fills with :func:`weight` (any number of coordinates); one window's fill is held at a time. NaN where no window fills."""
     T, J = missing.shape
     num = den = None
     for k, (a, b) in enumerate(p.windows):
@@ -73,7 +73,7 @@ def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tens
         w = torch.as_tensor(weight(p, k, missing[a:b].cpu().numpy(), T), dtype=part.dtype,
                             device=part.device)
         if num is None:
-            num = torch.zeros((T, J, 3), dtype=part.dtype, device=part.device)
+            num = torch.zeros((T, J, part.shape[2]), dtype=part.dtype, device=part.device)
             den = torch.zeros((T, J), dtype=part.dtype, device=part.device)
         w = torch.where(torch.isfinite(part).all(dim=2), w, 0.0)
         num[a:b] += w[..., None] * torch.nan_to_num(part)

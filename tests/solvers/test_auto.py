@@ -132,3 +132,20 @@ def test_error_estimate_is_calibrated_on_a_held_out_fill(recording):
     real = [np.sqrt(np.mean(err[a:b, j] ** 2)) for j, a, b in runs]
     est = [np.mean(std[a:b, j]) for j, a, b in runs]
     assert spearmanr(real, est).statistic >= 0.5
+
+
+def test_auto_on_2d_keypoints_in_windows():
+    """(T, J, 2) keypoints filled in two windows: the 3-D-only candidates (rigid, pma) drop out
+    with their reason, the fill and its std cover every gap, observed samples stay."""
+    X = _walk(T=400, J=6)[..., :2]
+    X[60:90, 1] = np.nan
+    X[300:320, 3] = np.nan
+    missing = np.isnan(X).any(axis=2)
+    out, std = torchfill.fill(X, method="auto", return_std=True, window=200,
+                              candidates=["pchip", "svt", "rigid"])
+    assert out.shape == X.shape and np.isfinite(out).all()
+    np.testing.assert_array_equal(out[~missing], X[~missing])
+    assert np.isfinite(std[missing]).all() and np.isnan(std[~missing]).all()
+    solver = get_solver("auto", candidates=["pchip", "svt", "rigid"]).fit(torch.from_numpy(X))
+    assert "rigid" in solver.dropped_ and "3-D" in solver.dropped_["rigid"]
+    assert set(solver.scores_) == {"pchip", "svt"}
