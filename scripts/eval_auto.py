@@ -34,8 +34,8 @@ from torchfill import gaps
 from torchfill.metrics import gap_runs, rmse
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-SINGLES = ("linear", "pchip", "spline", "pca_train", "svt", "cp", "smooth_cp", "tucker_tnn",
-           "rigid", "pma", "pca_gloersen")
+SINGLES = ("linear", "pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn", "rigid",
+           "pca_gloersen", "li", "lgrnn", "pma")
 
 
 def complete(name: str, frames: int | None) -> np.ndarray:
@@ -154,10 +154,13 @@ def std_checks(filled: np.ndarray, std: np.ndarray, truth: np.ndarray, mask: np.
     return float(rho), float(np.mean(err[mask] <= 2 * np.sqrt(3) * std[mask]))
 
 
-def run_case(case, P, mask, methods, auto_params) -> dict:
+def run_case(case, P, mask, methods, auto_params, reuse: dict | None = None) -> dict:
     X = np.where(mask[..., None], np.nan, P)
     row = {"case": case, "T": P.shape[0], "J": P.shape[1], "missing": int(mask.sum())}
     for m in methods:
+        if reuse and reuse.get(m, "") != "":                # scored by an earlier run
+            row[m], row[f"{m}_s"] = float(reuse[m]), float(reuse[f"{m}_s"])
+            continue
         t = time.perf_counter()
         try:
             out = torchfill.fill(X, method=m)
@@ -166,6 +169,10 @@ def run_case(case, P, mask, methods, auto_params) -> dict:
             row[m] = float("nan")
             print(f"  {case}: {m} failed: {err}", flush=True)
         row[f"{m}_s"] = time.perf_counter() - t
+    if auto_params is None:                             # singles only (--no-auto)
+        row.update(auto=float("nan"), auto_s=float("nan"), spearman=float("nan"),
+                   within=float("nan"))
+        return row, []
     t = time.perf_counter()
     out, std = torchfill.fill(X, method="auto", return_std=True, **auto_params)
     row["auto_s"] = time.perf_counter() - t
@@ -208,9 +215,17 @@ def main() -> None:
     parser.add_argument("--masks", type=Path, help="use the cases of scripts/mask_suite.py in DIR")
     parser.add_argument("--ref", type=Path, default=Path("/work/ref/out"),
                         help="MATLAB reference fills <case>__pma.npz etc. (columns when present)")
+    parser.add_argument("--methods", nargs="*", default=list(SINGLES), help="single methods")
+    parser.add_argument("--no-auto", action="store_true", help="score the single methods only")
+    parser.add_argument("--reuse", type=Path, help="take the single methods' scores of a case "
+                        "from this earlier CSV (same masks) instead of refilling")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
-    methods = [m for m in SINGLES if m in torchfill.methods()]
+    methods = [m for m in args.methods if m in torchfill.methods()]
+    reuse = {}
+    if args.reuse:
+        with open(args.reuse) as f:
+            reuse = {r["case"]: r for r in csv.DictReader(f)}
     path = Path(args.csv)
     done = []
     if args.resume and path.exists():
@@ -228,7 +243,9 @@ def main() -> None:
     for case, P, mask in cases:
         if case in names or (args.cases and case not in args.cases):
             continue
-        row, gap_rows = run_case(case, P, mask, methods, {"combine": args.combine})
+        row, gap_rows = run_case(case, P, mask, methods,
+                                 None if args.no_auto else {"combine": args.combine},
+                                 reuse.get(case))
         rows.append(row)
         with open(path.with_name(path.stem + "_gaps.csv"), "a", newline="") as f:
             csv.writer(f).writerows(gap_rows)

@@ -97,6 +97,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
     training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
+    if "constraints" in solver.declared_params():     # auto scores fills as they will come out
+        params["constraints"] = constraints
     if training is not None and "training" not in solver.fit_data:
         raise ValueError(f"{method}: takes no training data; methods that do: "
                          f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
@@ -132,7 +134,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         start = time.perf_counter()
         stds = {} if return_std else None
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info, stds, (a, b)))
+            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info, stds, (a, b), constraints))
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
         if return_std:
             part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
@@ -196,7 +198,8 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
 
 def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
                  progress: Callable[[dict], None] | None, info: dict,
-                 stds: dict | None = None, key: tuple[int, int] = (0, 0)) -> torch.Tensor:
+                 stds: dict | None = None, key: tuple[int, int] = (0, 0),
+                 constraints: bool = True) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
     steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
@@ -208,7 +211,8 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
     if stds is not None:
         est = getattr(solver, "std_", None)
         if est is None:
-            est = holdout_std(method, params, X, missing, seed=solver.seed, **extra)
+            est = holdout_std(method, params, X, missing, seed=solver.seed,
+                              constraints=constraints, **extra)
         stds[key] = est.to(filled.dtype)
     return filled
 

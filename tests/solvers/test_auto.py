@@ -124,7 +124,7 @@ def test_error_estimate_is_calibrated_on_a_held_out_fill(recording):
     X = np.where(mask[..., None], np.nan, P)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        out, std = torchfill.fill(X, method="auto", return_std=True, constraints=False,
+        out, std = torchfill.fill(X, method="auto", return_std=True,
                                   candidates=["pchip", "svt", "tucker_tnn"])
     err = np.linalg.norm(out - P, axis=2)
     assert np.mean(err[mask] <= 2 * np.sqrt(3) * std[mask]) >= 0.8

@@ -9,7 +9,11 @@ How (observed data only, never the ground truth of the gaps):
    (:func:`~torchfill.solvers.holdout.mirrored_edge_holdout`), so extrapolation is scored on
    extrapolation.
 2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
-   that fails on the recording (e.g. ``pca_train`` without enough complete frames) is dropped.
+   that fails on the recording (e.g. ``pca_train`` without enough complete frames, ``rigid`` or
+   ``pma`` on 2-D keypoints) is dropped. With ``constraints`` (what ``fill()`` passes by default)
+   each fill first goes through fill()'s constraints post-step, so candidates are scored on what
+   fill() will return; held-out samples that rigid donors fill (the same for every candidate) do
+   not count in the choice.
 3. Each gap (real or held out) gets a kind: at a trial end or inside, its length (``<= 20``,
    ``<= 80``, longer frames), and whether it is fast (its frames move more than ``FAST`` times the
    recording's median frame motion, measured on the markers seen there). Per kind, the candidates'
@@ -24,8 +28,8 @@ How (observed data only, never the ground truth of the gaps):
 5. The error estimate ``std_`` (T, J): a log-linear model of the held-out squared error of the
    combined fill on the sample's distance to the nearest observed frame, its gap's length,
    trial-end status, the share of markers missing in its frame, the candidates' disagreement there,
-   the fill's departure from linear interpolation, the marker's observed speed and the gap's frame
-   motion; fitted on the held-out samples, scaled so that the mean ratio of squared error to
+   the fill's departure from linear interpolation, the marker's observed speed, the gap's frame
+   motion and whether rigid donors fill the sample; fitted on the held-out samples, scaled so that the mean ratio of squared error to
    estimated variance there is 1, and grown in proportion to the motion beyond the 90th percentile
    of the hold-out's motion (which the fit cannot see).
 
@@ -147,13 +151,13 @@ def kind_weights(err2: Tensor, kinds: Tensor, n_kinds: int, *, combine: str,
 
 
 def error_features(d: Tensor, L: Tensor, edge: Tensor, share: Tensor, spread2: Tensor,
-                   bend2: Tensor, speed2: Tensor, motion: Tensor) -> Tensor:
-    """Design matrix (..., 9) of the log-linear error model (see the module notes)."""
+                   bend2: Tensor, speed2: Tensor, motion: Tensor, donor: Tensor) -> Tensor:
+    """Design matrix (..., 10) of the log-linear error model (see the module notes)."""
     dtype = spread2.dtype
     return torch.stack([torch.ones_like(spread2), torch.log(d.to(dtype)), torch.log(L.to(dtype)),
                         edge.to(dtype), torch.log(share.to(dtype)), torch.log(spread2 + 1e-8),
                         torch.log(bend2 + 1e-8), torch.log(speed2 + 1e-8),
-                        torch.log(motion + 1e-3)], dim=-1)
+                        torch.log(motion + 1e-3), donor.to(dtype)], dim=-1)
 
 
 def fit_error_model(F: Tensor, e2: Tensor, ridge: float = 1e-3) -> tuple[Tensor, float]:
@@ -209,6 +213,12 @@ class Auto(Solver):
         "refit": Param(True, bool,
                        doc="refit the candidates that carry weight on all observed samples for the "
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
+        "constraints": Param(False, bool,
+                             doc="score and average the candidates' fills after fill()'s "
+                                 "constraints post-step (torchfill.constraints, no extrapolation "
+                                 "limit), as fill() returns them; fill() passes its own "
+                                 "constraints= here (default True there). Samples that rigid "
+                                 "donors fill do not weigh in the choice; the error model knows them"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -252,21 +262,24 @@ class Auto(Solver):
         V = self._holdout(seen)
         fit_missing = ~seen | V
         names, fills = self._run_candidates(fit_missing)
+        fills, donor = self._constrain(fills, fit_missing)         # donor: rigid-donor samples
         d, L, edge = run_geometry(fit_missing)
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         motion = gap_motion(fit_missing, Xt)
         kinds = gap_kind(L, edge, motion > FAST)
         n_kinds = 4 * (len(LENGTH_EDGES) + 1)
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N) per coordinate
-        if err2.shape[1] == 0:                                      # nothing held out: plain mean
+        decide = ~donor[V]                      # held-out samples the candidates fill themselves
+        if int(decide.sum()) == 0:                                  # nothing to choose on
             W = torch.full((n_kinds, len(names)), 1.0 / len(names), dtype=fills.dtype,
                            device=fills.device)
         else:
-            W = kind_weights(err2, kinds[V], n_kinds, combine=self.combine,
+            W = kind_weights(err2[:, decide], kinds[V][decide], n_kinds, combine=self.combine,
                              keep_ratio=self.keep_ratio)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
-            fills = self._refit(names, fills, w, ~seen)
+            fills, real_donor = self._refit(names, fills, w, ~seen)
+            donor = torch.where(V, donor, real_donor)
         mean = (w[..., None] * fills).sum(dim=0)
         spread2 = self._spread2(fills, mean, err2)
         share = fit_missing.to(fills.dtype).mean(dim=1, keepdim=True).expand_as(spread2)
@@ -281,7 +294,7 @@ class Auto(Solver):
         self.scores_ = {n: float(e.mean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
         self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
                          for k in range(n_kinds)}
-        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion),
+        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion, donor),
                       ((mean - Xt) ** 2).mean(dim=2))
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)
@@ -328,18 +341,48 @@ class Auto(Solver):
                              + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
         return names, torch.stack(fills)
 
-    def _refit(self, names: list[str], fills: Tensor, w: Tensor, gaps: Tensor) -> Tensor:
+    def _refit(self, names: list[str], fills: Tensor, w: Tensor,
+               gaps: Tensor) -> tuple[Tensor, Tensor]:
         """Fills of the real ``gaps`` from the candidates that carry weight there, refitted on all
-        observed samples (the hold-out fit stays where the refit fails)."""
+        observed samples (the hold-out fit stays where the refit fails), constrained like the
+        hold-out fills; and the (T, J) samples that rigid donors fill."""
         fills = fills.clone()
-        for c, name in enumerate(names):
-            if not bool((w[c][gaps] > 0).any()):
-                continue
+        done = [c for c in range(len(names)) if bool((w[c][gaps] > 0).any())]
+        for c in list(done):
             try:
-                fills[c] = torch.where(gaps[..., None], self._fit_one(name, gaps), fills[c])
+                fills[c] = torch.where(gaps[..., None], self._fit_one(names[c], gaps), fills[c])
             except FAILURES:
-                pass
-        return fills
+                done.remove(c)
+        refits, donor = self._constrain(fills[done], gaps)
+        fills[done] = torch.where(gaps[..., None], refits, fills[done])
+        return fills, donor
+
+    def _constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
+        """Each candidate's fill (C, T, J, D) after fill()'s constraints post-step, with the
+        ``missing`` (T, J) samples free (no extrapolation limit), and the (T, J) samples rigid
+        donors fill (the same for every candidate: they depend on the observed samples only).
+        Unchanged, with no donors, when ``constraints`` is off."""
+        donor = torch.zeros_like(missing)
+        if not self.constraints or fills.shape[0] == 0:
+            return fills, donor
+        from ..constraints import constrain                    # fill()'s post-step, one home
+        from .rigid import rigid_pairs
+
+        miss = missing.cpu().numpy()
+        pairs = None
+        if fills.shape[-1] == 3:
+            X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
+            pairs = rigid_pairs(X, ~missing.cpu())
+        out = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for F in fills:
+                G, report = constrain(F.cpu().numpy(), miss, pairs=pairs)
+                out.append(torch.from_numpy(G))
+        if report.rigid_done is not None:
+            donor = torch.as_tensor(report.rigid_done, device=missing.device)
+        out = torch.stack(out).to(device=fills.device, dtype=fills.dtype)
+        return torch.where(torch.isfinite(out), out, fills), donor
 
     @staticmethod
     def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
@@ -355,9 +398,9 @@ class Auto(Solver):
     def _fit_std(self, V: Tensor, seen: Tensor, features: tuple, e2: Tensor) -> None:
         """Fit the error model on the held-out samples and predict it on the real gaps."""
         gaps = ~seen
-        d, L, edge, share, spread2, bend2, speed2, motion = features
+        d, L, edge, share, spread2, bend2, speed2, motion, donor = features
         F_all = error_features(d.clamp(min=1), L.clamp(min=1), edge, share.clamp(min=1e-3),
-                               spread2, bend2, speed2, motion)
+                               spread2, bend2, speed2, motion, donor)
         if int(V.sum()) >= 10:
             beta, log_scale = fit_error_model(F_all[V], e2[V])
             var = torch.exp(F_all[gaps] @ beta + log_scale)
@@ -373,10 +416,11 @@ class Auto(Solver):
 
 
 def holdout_std(method: str, params: dict, X: Tensor, missing: Tensor, seed: int = 0,
-                **data) -> Tensor:
+                constraints: bool = False, **data) -> Tensor:
     """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
     method as its only candidate, i.e. the method's held-out error on gaps of each kind.
-    ``data``: the method's fit data (``training=``)."""
-    solver = Auto(candidates=(method,), candidate_params={method: dict(params)}, seed=seed)
+    ``data``: the method's fit data (``training=``); ``constraints``: as fill()'s."""
+    solver = Auto(candidates=(method,), candidate_params={method: dict(params)}, seed=seed,
+                  constraints=constraints)
     solver.fit(X, missing, **data)
     return solver.std_
