@@ -158,7 +158,7 @@ def run_case(case, P, mask, methods, auto_params, reuse: dict | None = None) -> 
     X = np.where(mask[..., None], np.nan, P)
     row = {"case": case, "T": P.shape[0], "J": P.shape[1], "missing": int(mask.sum())}
     for m in methods:
-        if reuse and reuse.get(m, "") != "":                # scored by an earlier run
+        if reuse and reuse.get(m, "") not in ("", "nan"):   # scored by an earlier run
             row[m], row[f"{m}_s"] = float(reuse[m]), float(reuse[f"{m}_s"])
             continue
         t = time.perf_counter()
@@ -172,6 +172,9 @@ def run_case(case, P, mask, methods, auto_params, reuse: dict | None = None) -> 
     if auto_params is None:                             # singles only (--no-auto)
         row.update(auto=float("nan"), auto_s=float("nan"), spearman=float("nan"),
                    within=float("nan"))
+        return row, []
+    if reuse and reuse.get("auto", "") not in ("", "nan"):
+        row.update({k: float(reuse[k]) for k in ("auto", "auto_s", "spearman", "within")})
         return row, []
     t = time.perf_counter()
     out, std = torchfill.fill(X, method="auto", return_std=True, **auto_params)
@@ -217,15 +220,17 @@ def main() -> None:
                         help="MATLAB reference fills <case>__pma.npz etc. (columns when present)")
     parser.add_argument("--methods", nargs="*", default=list(SINGLES), help="single methods")
     parser.add_argument("--no-auto", action="store_true", help="score the single methods only")
-    parser.add_argument("--reuse", type=Path, help="take the single methods' scores of a case "
-                        "from this earlier CSV (same masks) instead of refilling")
+    parser.add_argument("--reuse", type=Path, nargs="+", help="take the scores of a case (single "
+                        "methods, auto) from these earlier CSVs (same masks) instead of refilling")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     methods = [m for m in args.methods if m in torchfill.methods()]
     reuse = {}
-    if args.reuse:
-        with open(args.reuse) as f:
-            reuse = {r["case"]: r for r in csv.DictReader(f)}
+    for earlier in args.reuse or ():
+        with open(earlier) as f:
+            for r in csv.DictReader(f):
+                have = reuse.setdefault(r["case"], {})
+                have.update({k: v for k, v in r.items() if v not in ("", "nan")})
     path = Path(args.csv)
     done = []
     if args.resume and path.exists():

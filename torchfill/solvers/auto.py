@@ -50,9 +50,13 @@ from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
 Tensor = torch.Tensor
 
-#: Candidates tried by default, in this order; names not registered (yet) are skipped.
+#: Candidates tried by default, in this order; names not registered (yet) are skipped. ``li``
+#: and ``lgrnn`` (Tits et al.'s local models, each < 1 s on 1200 x 41) were the best single
+#: method on 8 of the 19 cases of scripts/mask_suite.py (experiments/results/pma_reference.md);
+#: ``rigid`` is left out when the constraints run (their rigid donors are its fill; the rest is
+#: pchip's).
 DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
-                      "rigid", "pma", "pca_gloersen")
+                      "rigid", "li", "lgrnn", "pma", "pca_gloersen")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -240,7 +244,7 @@ class Auto(Solver):
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
             return list(self.candidates)
-        known = set(available())
+        known = set(available()) - ({"rigid"} if self.constraints else set())
         return [name for name in DEFAULT_CANDIDATES if name in known]
 
     # -- contract --------------------------------------------------------------------------
