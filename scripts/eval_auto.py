@@ -213,7 +213,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--csv", default="experiments/results/auto_eval.csv")
     parser.add_argument("--resume", action="store_true")
-    parser.add_argument("--cases", nargs="*", help="only these case names")
+    parser.add_argument("--cases", nargs="*", help="only these case names, in this order")
     parser.add_argument("--combine", default="average", choices=("average", "select"))
     parser.add_argument("--masks", type=Path, help="use the cases of scripts/mask_suite.py in DIR")
     parser.add_argument("--ref", type=Path, default=Path("/work/ref/out"),
@@ -245,8 +245,10 @@ def main() -> None:
     else:
         cases = [(case, (P := complete(name, frames)), make(P))
                  for case, name, frames, make in suite()]
+    if args.cases:                                      # in the order given
+        cases = sorted((c for c in cases if c[0] in args.cases), key=lambda c: args.cases.index(c[0]))
     for case, P, mask in cases:
-        if case in names or (args.cases and case not in args.cases):
+        if case in names:
             continue
         row, gap_rows = run_case(case, P, mask, methods,
                                  None if args.no_auto else {"combine": args.combine},

@@ -129,7 +129,7 @@ def _write_report(seq, filled, path: Path, title: str, rows=None) -> None:
     from torchfill import qc
 
     rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
-                                                      seq.labels)
+                                                      seq.labels, filled.meta.get("std"))
     path.write_text(qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
                                    units=seq.units, names=seq.labels), encoding="utf-8")
 

@@ -49,8 +49,10 @@ def limits(points, observed, pairs) -> Limits:
                   rigid=3 * 0.005 * pairs.scale, bounds=metrics.volume(X, observed))
 
 
-def gap_table(points, filled, rate: float | None = None, names=None) -> list[dict]:
-    """One row per gap of ``points`` (the input), judged on ``filled`` (the fill's output)."""
+def gap_table(points, filled, rate: float | None = None, names=None, std=None) -> list[dict]:
+    """One row per gap of ``points`` (the input), judged on ``filled`` (the fill's output).
+    ``std`` (T, J), optional: the fill's estimated error std (``fill(..., return_std=True)``); each
+    row then has its RMS over the gap as ``est_std``."""
     X = np.asarray(points, dtype=np.float64)
     F = np.asarray(filled, dtype=np.float64)
     missing = ~np.isfinite(X).all(axis=2)
@@ -68,6 +70,10 @@ def gap_table(points, filled, rate: float | None = None, names=None) -> list[dic
         if not observed[:, j].any():
             continue
         rows.append(_gap_row(X, F, j, a, b, T, rate, names, donors, lim, rigid, ref, black))
+        if std is not None:
+            s = np.asarray(std, dtype=np.float64)[a:b, j]
+            rows[-1]["est_std"] = float(np.sqrt(np.mean(s[np.isfinite(s)] ** 2))) \
+                if np.isfinite(s).any() else np.nan
     return rows
 
 
@@ -196,7 +202,7 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
         parts.append(f"<h3>{esc(row['marker'])} {row['start']}-{row['stop'] - 1}: "
                      f"{esc(row['verdict'])}</h3><img src='data:image/png;base64,{png}'>")
     cols = ["frames", "kind", "rigid_donors", "rigid_dev", "edge_jump", "max_step", "outside",
-            "unfilled", "verdict"]
+            "unfilled", *(["est_std"] if rows and "est_std" in rows[0] else []), "verdict"]
     parts.append("<h2>All gaps</h2><table><tr><th>marker</th><th>start-stop</th>"
                  + "".join(f"<th>{c}</th>" for c in cols) + "</tr>")
     for r in sorted(rows, key=lambda r: (r["verdict"] == "ok", r["j"], r["start"])):

@@ -88,9 +88,10 @@ def test_cli_writes_std_csv(tmp_path):
     X = _gappy()
     path = tmp_path / "trial.npz"
     np.savez(path, points=X, labels=np.array([f"M{j}" for j in range(6)]), rate=100.0, units="mm")
-    out, std_path = tmp_path / "filled.npz", tmp_path / "std.csv"
+    out, std_path, report = tmp_path / "filled.npz", tmp_path / "std.csv", tmp_path / "qc.html"
     assert main(["fill", str(path), "-o", str(out), "-m", "auto", "-q", "--std", str(std_path),
-                 "-p", 'candidates=["pchip","svt"]']) == 0
+                 "--report", str(report), "-p", 'candidates=["pchip","svt"]']) == 0
+    assert "<th>est_std</th>" in report.read_text()           # the qc report shows it per gap
     table = np.genfromtxt(std_path, delimiter=",", names=True)
     assert table.dtype.names[0] == "frame" and len(table) == X.shape[0]
     S = np.column_stack([table[n] for n in table.dtype.names[1:]])
