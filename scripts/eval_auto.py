@@ -283,8 +283,9 @@ def main() -> None:
                   f"{np.mean([float(r['auto']) for r in both]):.2f}; auto better on "
                   f"{sum(float(r['auto']) < float(r[tag]) for r in both)}")
     gaps_path = path.with_name(path.stem + "_gaps.csv")
-    if gaps_path.exists():
-        table = np.genfromtxt(gaps_path, delimiter=",", usecols=(4, 5))
+    table = np.genfromtxt(gaps_path, delimiter=",", usecols=(4, 5), ndmin=2) \
+        if gaps_path.exists() and gaps_path.stat().st_size else np.empty((0, 2))
+    if len(table) > 2:
         print(f"pooled over {len(table)} marker-gaps of all cases: Spearman(real per-gap RMS error, "
               f"mean std) = {spearmanr(table[:, 0], table[:, 1]).statistic:.2f}")
 
