@@ -203,7 +203,9 @@ def summary(rows: list[dict], methods: list[str]) -> str:
                  f"{np.nanmean([float(r['spearman']) for r in rows]):.2f} | "
                  f"{np.mean([float(r['within']) for r in rows]):.2f} | | |")
     best_single = min(means, key=lambda m: means[m] if np.isfinite(means[m]) else np.inf)
+    per_case = np.mean([np.nanmin([float(r[m]) for m in present]) for r in rows])
     lines.append(f"\nbest single method by mean: {best_single} {means[best_single]:.2f}; "
+                 f"per-case best single method averages {per_case:.2f}; "
                  f"auto mean {np.mean([float(r['auto']) for r in rows]):.2f}; "
                  f"worst auto / per-case best {max(ratios):.2f}")
     return "\n".join(lines)
