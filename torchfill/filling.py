@@ -20,7 +20,10 @@ from .solvers.auto import holdout_std
 LONG_GAP_SECONDS = 10.0
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
-DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
+#: ``auto``: on the 19 cases of scripts/mask_suite.py with the default constraints, mean RMSE 4.05
+#: mm (tucker_tnn 7.60, the best single method pma 4.52), never above 1.5x the per-case best
+#: (experiments/results/auto.md); 1.35x tucker_tnn's time on 2900 x 41 (scripts/bench_auto.py).
+DEFAULT_METHODS = ("auto", "tucker_tnn", "tucker", "pchip")
 
 
 class UnfilledWarning(UserWarning):
