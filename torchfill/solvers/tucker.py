@@ -286,15 +286,23 @@ class Tucker(Solver):
 
     def _observed_residual(self, Y: Tensor) -> float:
         """``||P_Omega(Y - T)||`` over the entries the fit sees."""
-        W, M = self._fit_data()
-        return float(torch.dist(Y * W, M))
+        W, minus_T, _ = self._fit_data()
+        return float(torch.linalg.vector_norm(torch.addcmul(minus_T, Y, W)))
 
-    def _fit_data(self) -> tuple[Tensor, Tensor]:
-        """The fit mask as 0/1 weights and the data times it (cached while the mask is the same)."""
+    def _change(self, X: Tensor, X_k: Tensor) -> float:
+        """``||X - X_k|| / ||X_k||``; both equal the data on the fitted entries, so only the others
+        are compared."""
+        i = self._fit_data()[2]
+        diff = torch.dist(X.reshape(-1).index_select(0, i), X_k.reshape(-1).index_select(0, i))
+        return float(diff / torch.linalg.vector_norm(X_k).clamp(min=1e-300))
+
+    def _fit_data(self) -> tuple[Tensor, Tensor, Tensor]:
+        """For the current fit mask (cached while it is the same): the mask as 0/1 weights, minus
+        the data on it, and the flat indices of the entries it leaves out."""
         mask = self.Omega_fit_
         if getattr(self, "_fit_cache", (None,))[0] is not mask:
             W = mask.to(self.M_.dtype)
-            self._fit_cache = (mask, W, self.M_ * W)
+            self._fit_cache = (mask, W, -(self.M_ * W), (~mask).reshape(-1).nonzero().squeeze(1))
         return self._fit_cache[1:]
 
     # -- one iteration ------------------------------------------------------------------------
@@ -317,7 +325,7 @@ class Tucker(Solver):
                 A, grown = increase_rank(A, self.max_rank_, self.delta_rank_, self.generator_)
                 if grown:
                     G = ops.multi_mode_dot(X, A, transpose=True)     # Eq. 32, core recomputed
-            delta = float(torch.dist(X, X_k) / torch.linalg.vector_norm(X_k).clamp(min=1e-300))
+            delta = self._change(X, X_k)
             self.X_, self.residual_ = X, r
             self.decomposition_.core, self.decomposition_.factors = G, A
             info = {"delta": delta, "residual": r, "rank_change": change,
