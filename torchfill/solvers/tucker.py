@@ -57,7 +57,7 @@ def update_factor(ZG: Tensor, G: Tensor, A_n: Tensor, n: int, rho_a: float,
     then the Q factor of its thin QR. ``ZG = Z_n G_(n)^T`` with ``Z_n = unfold_n(X x_{m != n}
     A(m)^T)`` is given (see :func:`factor_sweep`)."""
     Gn = ops.unfold(G, n)
-    rhs = ZG + rho_a * A_n
+    rhs = ZG.add(A_n, alpha=rho_a)
     lhs = Gn @ Gn.T
     lhs.diagonal().add_(alpha_n + rho_a)
     A_new = rhs @ torch.linalg.inv(lhs)     # lhs: small, SPD (ridge >= rho_a); a product is faster
@@ -433,4 +433,5 @@ class TuckerTNN(Tucker):
                               n_iter=self.apg_iter, svd=self.svd)             # Eqs. 25-30
         else:   # Eq. 24 closed form D_{lam/(1+rho_x)}(P), P = (Z + rho_x X_k) / (1 + rho_x)
             X1 = svt(P.reshape(T, -1), lam / (1.0 + self.rho_x), self.svd)
-        return torch.where(self.Omega_fit_, self.M_, X1.reshape(P.shape))   # reset observed
+        X1 = X1.reshape(P.shape)
+        return torch.where(self.Omega_fit_, self.M_, X1, out=X1)             # reset observed
