@@ -18,11 +18,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cp_tables import DATA, load  # noqa: E402
-
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's torchfill
+import torchfill  # noqa: E402
 from torchfill import gaps, metrics  # noqa: E402
+from torchfill.data import data_dir  # noqa: E402
 from torchfill.solvers import get_solver  # noqa: E402
+
+DATA = data_dir(Path(__file__).resolve().parents[1])
+
+
+def load(name: str) -> np.ndarray:
+    """(T, J, 3) points of a C3D in ``DATA`` (the reader drops HDM05's `*` copies)."""
+    return torchfill.read(DATA / (name if name.endswith(".c3d") else name + ".c3d")).points
 
 
 def full_fills(repeat: int) -> None:

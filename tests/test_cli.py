@@ -111,3 +111,22 @@ def test_real_recording_info_and_evaluate(recording, capsys):
                  "--max-gaps", "2", "-q", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)["results"][0]
     assert 0 < row["rmse"] < row["rmse_missing"] < 200  # mm; the all-entries RMSE is diluted
+
+
+def test_threads_option_sets_torch_threads_and_refuses_zero(gappy_npz, tmp_path, capsys, monkeypatch):
+    import torch
+
+    path, _ = gappy_npz
+    before = torch.get_num_threads()
+    monkeypatch.setenv("OMP_NUM_THREADS", str(before))      # restored after the test
+    out = tmp_path / "out.npz"
+    try:
+        assert main(["fill", str(path), "-o", str(out), "-m", "linear", "-q", "--threads", "1"]) == 0
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+    assert main(["fill", str(path), "-o", str(tmp_path / "x.npz"), "-m", "linear",
+                 "--threads", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["torchfill: error: --threads expected >= 1, found 0"]
+    assert not (tmp_path / "x.npz").exists()

@@ -28,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_ERROR
     try:
+        _set_threads(getattr(args, "threads", None))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             status = args.run(args)
@@ -50,6 +51,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"torchfill: internal error: {type(err).__name__}: {_one_line(err)} "
               "(set TORCHFILL_DEBUG=1 for the traceback)", file=sys.stderr)
         return 1
+
+
+def _set_threads(n: int | None) -> None:
+    """torch's threads for this run: ``--threads``, else ``OMP_NUM_THREADS``, else the cores the
+    machine leaves idle (at least 1). Threads that wait for busy cores are far slower than one:
+    a tucker_tnn iteration on 3000 x 41 frames took 84-93 ms with 1 thread and 685-1427 ms with 2
+    on this 2-core machine at load 9 (scripts/bench_threads.py)."""
+    if n is None:
+        if os.environ.get("OMP_NUM_THREADS"):
+            return
+        cores = os.cpu_count() or 1
+        n = max(1, min(cores, int(cores - os.getloadavg()[0] + 0.5)))
+    elif n < 1:
+        raise ValueError(f"--threads expected >= 1, found {n}")
+    os.environ["OMP_NUM_THREADS"] = str(n)       # read when torch is imported (lazily, later)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(n)
 
 
 def _install_signal_handlers() -> None:
@@ -412,6 +430,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
 
@@ -444,6 +463,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
 
@@ -471,6 +491,11 @@ def _parser() -> argparse.ArgumentParser:
                    "or ray://HOST:PORT (every node needs the recordings at the same path)")
     p.set_defaults(run=_cmd_experiment)
     return parser
+
+
+def _add_threads(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=int, metavar="N",
+                   help="torch threads (default: OMP_NUM_THREADS, else the idle cores, at least 1)")
 
 
 def _add_pose_options(p: argparse.ArgumentParser) -> None:

@@ -21,8 +21,8 @@ with ``X`` the model tensor (G x_1 A(1) x_2 A(2) x_3 A(3), or sum_r w_r a_r(1) o
 followed by a retraction that keeps the model exact: Tucker factors are re-orthonormalized by a thin
 QR, ``A = QR``, with ``R`` absorbed into the core (``G x_n R``), so the tensor is unchanged; CP
 columns are scaled to unit norm with the norms moved into the weights. The QR retraction was chosen
-over ``torch.nn.utils.parametrizations.orthogonal`` on measurements (``scripts/grad_vs_closed.py
---ortho``, experiments/results/autograd.md): with Adam both reach the same error (1.1e-3) but the
+over ``torch.nn.utils.parametrizations.orthogonal`` on measurements (wave 1,
+experiments/results/autograd.md): with Adam both reach the same error (1.1e-3) but the
 parametrization costs about twice the time per step (Householder products in every forward and
 backward pass); with L-BFGS the QR retraction reaches 7e-5 and the parametrization only 6e-2 in
 1000 steps. The QR model is also a plain module whose state_dict loads into a fresh TuckerTensor.

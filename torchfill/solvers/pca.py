@@ -308,7 +308,7 @@ class _PCA(Solver):
         "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
                           doc="rank r = fewest eigenvectors explaining this share of the training "
                               "variance (0.9999: chosen among 0.99-0.99999 on the development "
-                              "recordings cmu_85_02 and HDM_bd_01-02, scripts/pca_tables.py --dev)"),
+                              "recordings cmu_85_02 and HDM_bd_01-02, experiments/pca_dev.yaml)"),
         "rank": Param(None, int, low=1, allow_none=True, doc="fixed rank r instead of the rule"),
         "self_share": Param(0.5, float, low=0.0, high=1.0,
                             doc="with a training set: weight of the recording's own complete frames "
@@ -547,7 +547,7 @@ class PCABlackout(_PCA):
     params = {
         "variance": Param(0.99999, float, low=0.0, high=1.0, low_open=True,
                           doc="rank rule (as pca_train); 0.99999: best of 0.99-0.99999 with the "
-                              "prior on the development recordings (scripts/pca_tables.py --dev)"),
+                              "prior on the development recordings (experiments/pca_dev.yaml)"),
         "centre": Param(True, bool, doc="body-centred frames for the partial gaps (see pca_train)"),
         "window": Param(200, int, low=4, doc="window around a blackout (the paper's 200-frame segments)"),
         "edge_scale": Param(1.0, float, low=0.0, low_open=True, allow_none=True,
