@@ -133,6 +133,15 @@ def test_svt_gram_matches_svd(shape):
     assert r == r_full == 5 and torch.allclose(got, want, atol=1e-9)
 
 
+@pytest.mark.parametrize("kept", [5, 20])      # the (Z V_r) V_r^T product and the Z (V V^T) one
+def test_svt_gram_full_rank_matches_svd(kept):
+    M = torch.randn(300, 30, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    S = torch.linalg.svdvals(M)
+    tau = float(S[kept - 1] + S[kept]) / 2
+    (got, r), (want, _) = ops.svt(M, tau, "gram"), ops.svt(M, tau, "full")
+    assert r == kept and torch.allclose(got, want, atol=1e-9)
+
+
 def test_energy_rank_and_difference_operators():
     M = torch.diag(torch.tensor([3.0, 2.0, 1.0], dtype=torch.float64))     # energies 9, 4, 1
     assert [ops.energy_rank(M, e) for e in (0.5, 0.9, 0.99)] == [1, 2, 3]

@@ -193,8 +193,8 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     if j.size == 0:
         return
     d0 = pairs.distance.cpu().numpy()[j, k]
-    A_j, A_k = (np.eye(F.shape[1])[idx] for idx in (j, k))                # (P, J) incidence
     band = SOFT_BAND * pairs.spread.cpu().numpy()[j, k]
+    Sj, Sk = (np.eye(F.shape[1])[idx] for idx in (j, k))                # pair -> marker (P x J)
     for _ in range(SOFT_ITER):
         diff = F[:, j] - F[:, k]                                           # (T, P, 3)
         n = np.linalg.norm(diff, axis=2)
@@ -205,12 +205,23 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
         share_j = np.where(free[:, k], 0.5, 1.0) * free[:, j] * use
         share_k = np.where(free[:, j], 0.5, 1.0) * free[:, k] * use
         step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[..., None] * diff
-        # sums over the pairs of each marker, as products with the (J, P) incidence matrices
-        # (np.add.at did the same 5x slower)
-        C = ((share_j[..., None] * step).transpose(0, 2, 1) @ A_j
-             - (share_k[..., None] * step).transpose(0, 2, 1) @ A_k).transpose(0, 2, 1)
-        count = (share_j > 0) @ A_j + (share_k > 0) @ A_k
+        C = _to_markers(share_j[..., None] * step, Sj) - _to_markers(share_k[..., None] * step, Sk)
+        count = (share_j > 0) @ Sj + (share_k > 0) @ Sk
         F += np.nan_to_num(C / np.maximum(count, 1)[..., None])
+
+
+def _to_markers(V: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Per-pair vectors ``V`` (T, P, D) summed onto markers through the pair -> marker matrix ``S``
+    (P, J): (T, J, D), NaN wherever a NaN was summed in (as an unbuffered add would give)."""
+    T, P, D = V.shape
+    bad = np.isnan(V)
+
+    def through(A):                                                    # one (T D) x P x J product
+        return (A.transpose(0, 2, 1).reshape(T * D, P) @ S).reshape(T, D, -1).transpose(0, 2, 1)
+
+    out = through(np.where(bad, 0.0, V))
+    out[through(bad.astype(float)) > 0] = np.nan
+    return out
 
 
 def _limit_steps(F, missing, limit: float, report) -> None:

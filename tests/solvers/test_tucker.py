@@ -40,6 +40,26 @@ def test_apg_solver_matches_closed_form_solver():
     assert torch.allclose(a, b, atol=1e-6)
 
 
+def test_factor_sweep_and_proximal_point_match_mode_products():
+    # the fused products on the temporal unfolding equal the paper's mode products (Eqs. 17-19)
+    X, G, A = _low_rank((40, 7, 3), (5, 4, 3), seed=5)
+    A = [torch.linalg.qr(a).Q for a in A]
+    rho_a, alpha, rho_x = 0.1, [1e-3] * 3, 0.3
+    new, XA = tk.factor_sweep(X, G, A, rho_a, alpha)
+    want = list(A)
+    for n in range(3):                       # Eq. 17 with Z_n = unfold_n(X x_{m != n} A(m)^T)
+        Zn = ops.unfold(ops.multi_mode_dot(X, want, skip=n, transpose=True), n)
+        Gn = ops.unfold(G, n)
+        lhs = Gn @ Gn.T + (alpha[n] + rho_a) * torch.eye(Gn.shape[0], dtype=X.dtype)
+        want[n] = torch.linalg.qr(torch.linalg.solve(lhs, (Zn @ Gn.T + rho_a * want[n]).T).T).Q
+    for a, b in zip(new, want):
+        assert torch.allclose(a, b, atol=1e-10)
+    assert torch.allclose(XA, ops.multi_mode_dot(X, want, transpose=True), atol=1e-10)
+    X_k = torch.randn(X.shape, generator=torch.Generator().manual_seed(6), dtype=X.dtype)
+    P = tk.proximal_point(G, want, X_k, rho_x)
+    assert torch.allclose(P, (ops.tucker_to_tensor(G, want) + rho_x * X_k) / (1 + rho_x), atol=1e-12)
+
+
 def _smooth_low_rank(seed, shape=(60, 20, 3), rank=(4, 4, 3)):
     """Rank-(4, 4, 3) tensor whose temporal factors are sinusoids (smooth in time, like motion)."""
     g = torch.Generator().manual_seed(seed)

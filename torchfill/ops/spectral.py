@@ -47,7 +47,10 @@ def svt(M: Tensor, tau: float | Tensor, method: str = "full", keep: int = 0) -> 
     s, V = gram_svd(Z)
     r = int((s > tau).sum())
     s, V = s[:r], V[:, :r]
-    out = Z @ ((V * ((s - tau) / s)) @ V.mT)
+    if 2 * r < V.shape[0]:       # few kept: (Z V_r) diag(1 - tau/s) V_r^T, 2 m n r flops, not m n^2
+        out = ((Z @ V) * ((s - tau) / s)) @ V.mT
+    else:
+        out = Z @ ((V * ((s - tau) / s)) @ V.mT)
     return (out.mT if transposed else out), r
 
 

@@ -259,6 +259,7 @@ class HoldOut:
         self.active = self.V is not None
         self.fit_mask = Omega & ~self.V if self.active else Omega
         self.n_held = int(self.V.sum()) if self.active else 0
+        self._index = self.V.reshape(-1).nonzero().squeeze(1) if self.active else None   # flat
         self.min_gain, self.atol = min_gain, atol
         self.best_score, self.best_state, self.best_iter = math.inf, None, 0
         self.n_bad = 0
@@ -267,8 +268,9 @@ class HoldOut:
         """RMSE of ``X`` against the data ``M`` over the held-out entries (nan when inactive)."""
         if self.V is None:
             return math.nan
-        E = torch.where(self.V, X - M, torch.zeros((), dtype=X.dtype, device=X.device))
-        return float(torch.linalg.vector_norm(E)) / math.sqrt(max(self.n_held, 1))
+        i = self._index
+        return float(torch.dist(X.reshape(-1).index_select(0, i), M.reshape(-1).index_select(0, i))
+                     ) / math.sqrt(max(self.n_held, 1))
 
     def offer(self, score: float, state: Callable[[], Any], iteration: int = 0) -> bool:
         """Keep ``state()`` (called only then) if ``score`` beats the best; returns whether it did."""

@@ -51,16 +51,16 @@ Tensor = torch.Tensor
 # ---------------------------------------------------------------------------------------------
 # Block updates (one function per equation)
 # ---------------------------------------------------------------------------------------------
-def update_factor(Zn: Tensor, G: Tensor, A_n: Tensor, n: int, rho_a: float,
+def update_factor(ZG: Tensor, G: Tensor, A_n: Tensor, n: int, rho_a: float,
                   alpha_n: float) -> Tensor:
     """Eq. 17: ``A(n) = (Z_n G_(n)^T + rho_a A(n)_k)(G_(n) G_(n)^T + (alpha_n + rho_a) I)^-1``,
-    then the Q factor of its thin QR. ``Zn = unfold_n(X x_{m != n} A(m)^T)`` is given (see
-    :func:`factor_sweep`)."""
+    then the Q factor of its thin QR. ``ZG = Z_n G_(n)^T`` with ``Z_n = unfold_n(X x_{m != n}
+    A(m)^T)`` is given (see :func:`factor_sweep`)."""
     Gn = ops.unfold(G, n)
-    rhs = Zn @ Gn.T + rho_a * A_n
+    rhs = ZG.add(A_n, alpha=rho_a)
     lhs = Gn @ Gn.T
     lhs.diagonal().add_(alpha_n + rho_a)
-    A_new = torch.linalg.solve(lhs, rhs.T).T        # lhs is symmetric
+    A_new = rhs @ torch.linalg.inv(lhs)     # lhs: small, SPD (ridge >= rho_a); a product is faster
     return ops.orthonormalize(A_new)
 
 
@@ -68,20 +68,24 @@ def factor_sweep(X: Tensor, G: Tensor, A: list[Tensor], rho_a: float,
                  alpha: Sequence[float]) -> tuple[list[Tensor], Tensor]:
     """Eq. 17 for n = 1, 2, 3 in turn (Gauss-Seidel: ``Z_n`` uses the factors already updated).
 
-    Returns the new factors and ``X x_1 A(1)^T x_2 A(2)^T x_3 A(3)^T`` for the core update (Eq. 18).
-    The time-mode product ``W = X x_1 A(1)^T`` (the one large contraction) is computed once after
-    ``A(1)`` is updated and shared by ``Z_2``, ``Z_3`` and the core.
+    Returns the new factors and ``X x_1 A(1)^T x_2 A(2)^T x_3 A(3)^T`` for the core update
+    (Eq. 18). The two products with the long time mode are single
+    products of the temporal unfolding ``X_(1)`` (T x JK, a view): ``Z_1 G_(1)^T = X_(1) (A(2) kron
+    A(3)) G_(1)^T`` (the small JK x R1 matrix first) and ``W_(1) = A(1)^T X_(1)``, shared by ``Z_2``,
+    ``Z_3`` and the core.
     """
     A = list(A)
-    Z1 = ops.unfold(ops.mode_dot(ops.mode_dot(X, A[1].T, 1), A[2].T, 2), 0)
-    A[0] = update_factor(Z1, G, A[0], 0, rho_a, alpha[0])
-    W = ops.mode_dot(X, A[0].T, 0)                                   # R1 x J x 3
+    T, J, K = X.shape
+    X1 = X.reshape(T, J * K)
+    ZG1 = X1 @ (torch.kron(A[1], A[2]) @ ops.unfold(G, 0).T)       # Z_1 G_(1)^T
+    A[0] = update_factor(ZG1, G, A[0], 0, rho_a, alpha[0])
+    W = (A[0].T @ X1).reshape(-1, J, K)                              # R1 x J x K
     Z2 = ops.unfold(ops.mode_dot(W, A[2].T, 2), 1)
-    A[1] = update_factor(Z2, G, A[1], 1, rho_a, alpha[1])
-    W = ops.mode_dot(W, A[1].T, 1)                                   # R1 x R2 x 3
-    Z3 = ops.unfold(W, 2)
-    A[2] = update_factor(Z3, G, A[2], 2, rho_a, alpha[2])
-    return A, ops.mode_dot(W, A[2].T, 2)
+    A[1] = update_factor(Z2 @ ops.unfold(G, 1).T, G, A[1], 1, rho_a, alpha[1])
+    V = ops.mode_dot(W, A[1].T, 1)                                   # R1 x R2 x K
+    Z3 = ops.unfold(V, 2)
+    A[2] = update_factor(Z3 @ ops.unfold(G, 2).T, G, A[2], 2, rho_a, alpha[2])
+    return A, ops.mode_dot(V, A[2].T, 2)
 
 
 def update_core(XA: Tensor, G_k: Tensor, rho_g: float) -> Tensor:
@@ -90,9 +94,20 @@ def update_core(XA: Tensor, G_k: Tensor, rho_g: float) -> Tensor:
     return (XA + rho_g * G_k) / (1.0 + rho_g)
 
 
-def recover_tucker(Y: Tensor, X_k: Tensor, T: Tensor, Omega: Tensor, rho_x: float) -> Tensor:
-    """Eq. 19: ``X = P_Omega^c((G x A + rho_x X_k) / (1 + rho_x)) + P_Omega(T)``."""
-    return torch.where(Omega, T, (Y + rho_x * X_k) / (1.0 + rho_x))
+def proximal_point(G: Tensor, A: Sequence[Tensor], X_k: Tensor, rho_x: float) -> Tensor:
+    """``(G x A + rho_x X_k) / (1 + rho_x)``, the point Eqs. 19 and 24 pull ``X`` towards, as one
+    product on the temporal unfolding: ``(A(1) [G x_2 A(2) x_3 A(3)]_(1) + rho_x X_k,(1)) /
+    (1 + rho_x)`` (the full ``G x A`` is never formed)."""
+    T = X_k.shape[0]
+    B = ops.unfold(ops.mode_dot(ops.mode_dot(G, A[2], 2), A[1], 1), 0)   # R1 x JK
+    P = torch.addmm(X_k.reshape(T, -1), A[0], B, beta=rho_x / (1.0 + rho_x), alpha=1.0 / (1.0 + rho_x))
+    return P.reshape(X_k.shape)
+
+
+def recover_tucker(P: Tensor, T: Tensor, Omega: Tensor) -> Tensor:
+    """Eq. 19: ``X = P_Omega^c((G x A + rho_x X_k) / (1 + rho_x)) + P_Omega(T)``, given
+    ``P = (G x A + rho_x X_k) / (1 + rho_x)`` (:func:`proximal_point`)."""
+    return torch.where(Omega, T, P)
 
 
 def svt(M: Tensor, tau: float, method: str = "gram") -> Tensor:
@@ -270,12 +285,29 @@ class Tucker(Solver):
         self.residual_ = self._observed_residual(self.decomposition_())
 
     def _observed_residual(self, Y: Tensor) -> float:
-        R = torch.where(self.Omega_fit_, Y - self.M_, torch.zeros((), dtype=Y.dtype, device=Y.device))
-        return float(torch.linalg.norm(R))
+        """``||P_Omega(Y - T)||`` over the entries the fit sees."""
+        W, minus_T, _ = self._fit_data()
+        return float(torch.linalg.vector_norm(torch.addcmul(minus_T, Y, W)))
+
+    def _change(self, X: Tensor, X_k: Tensor) -> float:
+        """``||X - X_k|| / ||X_k||``; both equal the data on the fitted entries, so only the others
+        are compared."""
+        i = self._fit_data()[2]
+        diff = torch.dist(X.reshape(-1).index_select(0, i), X_k.reshape(-1).index_select(0, i))
+        return float(diff / torch.linalg.vector_norm(X_k).clamp(min=1e-300))
+
+    def _fit_data(self) -> tuple[Tensor, Tensor, Tensor]:
+        """For the current fit mask (cached while it is the same): the mask as 0/1 weights, minus
+        the data on it, and the flat indices of the entries it leaves out."""
+        mask = self.Omega_fit_
+        if getattr(self, "_fit_cache", (None,))[0] is not mask:
+            W = mask.to(self.M_.dtype)
+            self._fit_cache = (mask, W, -(self.M_ * W), (~mask).reshape(-1).nonzero().squeeze(1))
+        return self._fit_cache[1:]
 
     # -- one iteration ------------------------------------------------------------------------
-    def _recover(self, Y: Tensor, X_k: Tensor) -> Tensor:
-        return recover_tucker(Y, X_k, self.M_, self.Omega_fit_, self.rho_x)   # Eq. 19
+    def _recover(self, P: Tensor, X_k: Tensor, G: Tensor, A: list[Tensor]) -> Tensor:
+        return recover_tucker(P, self.M_, self.Omega_fit_)                    # Eq. 19
 
     def step(self) -> dict[str, float]:
         with torch.no_grad():
@@ -283,16 +315,17 @@ class Tucker(Solver):
             A = list(self.decomposition_.factors)
             A, XA = factor_sweep(X_k, G_k, A, self.rho_a, self.alpha_)        # Eq. 17
             G = update_core(XA, G_k, self.rho_g)                              # Eq. 18
-            Y = ops.tucker_to_tensor(G, A)
-            X = self._recover(Y, X_k)                                         # Eq. 19 / 24-30
-            r = self._observed_residual(Y)
+            P = proximal_point(G, A, X_k, self.rho_x)           # (G x A + rho_x X_k) / (1 + rho_x)
+            X = self._recover(P, X_k, G, A)                                   # Eq. 19 / 24-30
+            # observed residual ||P_Omega(G x A - T)||: X_k = T on Omega, so G x A - T = (1+rho_x)(P - T)
+            r = (1.0 + self.rho_x) * self._observed_residual(P)
             change = abs(1.0 - r / self.residual_) if self.residual_ > 0 else 0.0
             grown = False
             if change <= self.eps_:                                           # Eq. 31
                 A, grown = increase_rank(A, self.max_rank_, self.delta_rank_, self.generator_)
                 if grown:
                     G = ops.multi_mode_dot(X, A, transpose=True)     # Eq. 32, core recomputed
-            delta = float(torch.linalg.norm(X - X_k) / torch.linalg.norm(X_k).clamp(min=1e-300))
+            delta = self._change(X, X_k)
             self.X_, self.residual_ = X, r
             self.decomposition_.core, self.decomposition_.factors = G, A
             info = {"delta": delta, "residual": r, "rank_change": change,
@@ -391,13 +424,14 @@ class TuckerTNN(Tucker):
                      doc="SVT through the eigen-decomposition of the 3J x 3J Gram (fast) or a thin SVD"),
     }
 
-    def _recover(self, Y: Tensor, X_k: Tensor) -> Tensor:
-        T = Y.shape[0]
-        Z, Xk1 = Y.reshape(T, -1), X_k.reshape(T, -1)                       # temporal unfolding
+    def _recover(self, P: Tensor, X_k: Tensor, G: Tensor, A: list[Tensor]) -> Tensor:
+        T = P.shape[0]
         lam = self.lam * math.sqrt(T)
         if self.x_step == "apg":
-            X1 = prox_tnn_apg(Z, Xk1, self.rho_x, lam, step=self.apg_step,
+            Z = ops.tucker_to_tensor(G, A).reshape(T, -1)                     # temporal unfolding
+            X1 = prox_tnn_apg(Z, X_k.reshape(T, -1), self.rho_x, lam, step=self.apg_step,
                               n_iter=self.apg_iter, svd=self.svd)             # Eqs. 25-30
-        else:
-            X1 = prox_tnn_closed_form(Z, Xk1, self.rho_x, lam, self.svd)     # Eq. 24 closed form
-        return torch.where(self.Omega_fit_, self.M_, X1.reshape(Y.shape))   # reset observed
+        else:   # Eq. 24 closed form D_{lam/(1+rho_x)}(P), P = (Z + rho_x X_k) / (1 + rho_x)
+            X1 = svt(P.reshape(T, -1), lam / (1.0 + self.rho_x), self.svd)
+        X1 = X1.reshape(P.shape)
+        return torch.where(self.Omega_fit_, self.M_, X1, out=X1)             # reset observed
