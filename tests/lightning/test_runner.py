@@ -285,3 +285,14 @@ def test_experiment_without_the_extra_is_a_one_line_error(monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and err.startswith("torchfill: error: ")
     assert "pip install 'torchfill[experiments]'" in err and "yaml" in err
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "experiments").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_shipped_config_loads_against_the_shared_data(path, data_dir, monkeypatch):
+    """Each config's recordings resolve from its own data_dir (relative to the file), as
+    ``torchfill experiment experiments/X.yaml`` from a checkout beside ../shared needs."""
+    monkeypatch.delenv("TORCHFILL_DATA", raising=False)
+    if data_dir.resolve() != (REPO.parent / "shared" / "data").resolve():
+        pytest.skip("the shared data are not at ../shared/data beside this checkout")
+    cfg = load_config(path)
+    assert cfg.cases() and all(cfg.recording_path(r).is_file() for r in cfg.recordings)
