@@ -109,7 +109,7 @@ def markdown(rows: list[dict]) -> str:
                        + f" | {best} |")
         out.append("")
     full = [c for c in cases if all(R.get((c, m)) and R[(c, m)]["unfilled"] == 0 for m in methods)]
-    out += [f"### Means", "", f"Cases every method fills completely: {len(full)} of {len(cases)}.", "",
+    out += ["### Means", "", f"Cases every method fills completely: {len(full)} of {len(cases)}.", "",
             "| method | mean RMSE all (filled-by-all cases) | mean RMSE missing (same) | mean RMSE all, unfilled → linear (all cases) | cases with unfilled samples | median s | max s |",
             "|---|---|---|---|---|---|---|"]
     for m in methods:

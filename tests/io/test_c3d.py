@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import torchfill
-from torchfill.io import FileFormatError
 from torchfill.io import c3d as tc3d
 
 from iohelpers import data_files, linear_fill, longest_run, synthetic

@@ -10,7 +10,6 @@ import torch
 
 import torchfill
 from torchfill import metrics
-from torchfill.solvers import get_solver
 from torchfill.solvers.pma import local_frame, space_constraint, symfilter, to_global, to_local
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"

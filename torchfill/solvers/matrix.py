@@ -244,7 +244,6 @@ class BandedCholesky:
     """
 
     def __init__(self, bands: Tensor, block: int | None = None) -> None:
-        T = bands.shape[1]
         block = block or 32                  # measured best of 16..128 for T = 5202 (bench_matrix)
         self.L_bands = _cholesky_bands(bands)
         self._sub = _BlockedSubstitution(self.L_bands, block)
