@@ -56,6 +56,8 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
         rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
         params = _training_params(cfg, case, rec.labels, rest)
         constrained = bool(params.pop("constraints", False))   # fill()'s post-step, scored
+        if "constraints" in get_solver(case.method.solver).declared_params():
+            params["constraints"] = constrained     # auto scores candidates as fill() passes it
         solver = get_solver(case.method.solver, **params)
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
