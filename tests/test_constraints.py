@@ -100,3 +100,24 @@ def test_no_teleport_on_a_real_gap_file(recording, name):
     assert metrics.outside_volume(out.points, seq.mask, metrics.volume(seq.points, observed)) == 0
     if "hybrid_1_5" in name:
         assert metrics.teleports(raw.points, seq.mask, limit) > 0
+
+
+def test_blocks_of_pairs_and_frames_do_not_change_the_result(recording, monkeypatch):
+    """Rigid pairs and soft distances are computed a block at a time so that long recordings
+    fit in memory: pair blocks give the same bits as one block, frame blocks the same up to the
+    rounding of a matrix product with fewer rows (frames are independent there)."""
+    from torchfill import constraints
+    from torchfill.solvers import rigid
+
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_5.c3d"))
+    F = torchfill.fill(seq, "linear", constraints=False).points
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole, _ = constrain(F, seq.mask)
+        monkeypatch.setattr(rigid, "PAIR_BLOCK", 1)
+        assert np.array_equal(constrain(F, seq.mask)[0], whole, equal_nan=True)
+        monkeypatch.setattr(constraints, "SOFT_BLOCK", 1)
+        blocked = constrain(F, seq.mask)[0]
+    np.testing.assert_allclose(blocked, whole, rtol=0, atol=1e-9)
+    assert np.array_equal(blocked[~seq.mask], seq.points[~seq.mask])
+    assert np.nanmax(np.abs(whole - F)) > 1.0                       # the constraints did move fills

@@ -44,6 +44,8 @@ SOFT_WEIGHT = 0.5
 SOFT_BAND = 3.0
 #: Jacobi iterations of the soft-distance projection.
 SOFT_ITER = 10
+#: Soft distances are projected on this many (frame, pair) entries at a time.
+SOFT_BLOCK = 1 << 18
 #: Share of the observed per-axis range a fill may lie outside it.
 VOLUME_MARGIN = 0.1
 #: A fill's one-frame step may not exceed STEP_FACTOR x this percentile of the observed steps
@@ -187,7 +189,9 @@ def _edge_offset(F, ok, j, t, side: int):
 
 
 def _soft_distances(F, free, pairs: RigidPairs) -> None:
-    """Move free filled samples towards their rigid partners' distances (Jacobi projection)."""
+    """Move free filled samples towards their rigid partners' distances (Jacobi projection).
+    Frames are independent: only those with a free pair member are projected, a block at a time
+    (memory bounded for any length)."""
     rigid = (pairs.rigid & ~pairs.duplicate).cpu().numpy()
     j, k = np.nonzero(np.triu(rigid, 1))
     if j.size == 0:
@@ -195,6 +199,17 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     d0 = pairs.distance.cpu().numpy()[j, k]
     band = SOFT_BAND * pairs.spread.cpu().numpy()[j, k]
     Sj, Sk = (np.eye(F.shape[1])[idx] for idx in (j, k))                # pair -> marker (P x J)
+    rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
+    size = max(1, SOFT_BLOCK // j.size)
+    for a in range(0, rows.size, size):
+        t = rows[a:a + size]
+        G = F[t]
+        _project_distances(G, free[t], j, k, d0, band, Sj, Sk)
+        F[t] = G
+
+
+def _project_distances(F, free, j, k, d0, band, Sj, Sk) -> None:
+    """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place)."""
     for _ in range(SOFT_ITER):
         diff = F[:, j] - F[:, k]                                           # (T, P, 3)
         n = np.linalg.norm(diff, axis=2)

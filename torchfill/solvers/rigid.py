@@ -73,6 +73,12 @@ class RigidPairs:
         return sorted(best, key=lambda k: spread[k])[:max_partners]
 
 
+#: Pair distances are measured this many (frame, pair) entries at a time: 4M doubles = 32 MB
+#: per array, so a 120 000-frame recording needs ~0.2 GB here instead of the 7 GB of all
+#: (T, J, J, 3) differences at once.
+PAIR_BLOCK = 1 << 20
+
+
 def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005,
                 min_frames: int = 20) -> RigidPairs:
     """Find rigid marker pairs from the frames where both markers are observed.
@@ -93,12 +99,21 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
     if observed is None:
         observed = torch.isfinite(X).all(dim=-1)
     X = torch.where(observed[..., None], X, torch.nan)
-    D = torch.linalg.vector_norm(X[:, :, None] - X[:, None], dim=-1)          # (T, J, J)
-    n = (observed[:, :, None] & observed[:, None]).sum(dim=0)
-    med = torch.nanmedian(D, dim=0).values
-    mad = 1.4826 * torch.nanmedian((D - med).abs(), dim=0).values
+    T, J = X.shape[:2]
+    seen = torch.where(observed.any(dim=0), 0.0, torch.nan).to(X.dtype)   # a marker to itself
+    med, mad = torch.diag(seen), torch.diag(seen)
+    n = torch.diag(observed.sum(dim=0))
+    j, k = torch.triu_indices(J, J, 1, device=X.device)
+    block = max(1, PAIR_BLOCK // max(T, 1))              # pairs at a time: memory ~ T x block
+    for a in range(0, j.numel(), block):
+        jb, kb = j[a:a + block], k[a:a + block]
+        D = torch.linalg.vector_norm(X[:, jb] - X[:, kb], dim=-1)              # (T, pairs)
+        m = torch.nanmedian(D, dim=0).values
+        s = 1.4826 * torch.nanmedian((D - m).abs(), dim=0).values
+        c = (observed[:, jb] & observed[:, kb]).sum(dim=0)
+        for out, v in ((med, m), (mad, s), (n, c)):
+            out[jb, kb] = out[kb, jb] = v
     enough = n >= min_frames
-    J = X.shape[1]
     off = ~torch.eye(J, dtype=torch.bool, device=X.device)
     finite = enough & off & torch.isfinite(med)
     scale = float(torch.median(med[finite])) if bool(finite.any()) else 1.0
