@@ -105,6 +105,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
         done = done.numpy() & missing
         F[done] = R.numpy()[done]
+        del X, R                        # long recordings: two full-length copies fewer from here
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
     if long is not None:

@@ -148,6 +148,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         part = out if whole else out[:, keep]
         write = todo[:, keep, None] & ~torch.isfinite(part)
         part[write] = filled[write].to(out.dtype)
+        del filled
         if not whole:
             out[:, keep] = part
     if constraints and bool(todo.any()):

@@ -5,10 +5,11 @@ the number of frames and memory is bounded by one window. The plan is chosen fro
 
 - ``overlap = 2 * longest gap`` (at least ``MIN_OVERLAP``): every gap, with half its length of
   observed context on each side, then lies whole inside at least one window;
-- ``length = max(window, 3 * overlap)``: windows are long against their overlaps, so most frames
-  are solved once (a window costs about ``length / (length - overlap)`` times a single pass);
-- windows are spread evenly with overlaps of at least ``overlap``; when ``length >= T`` there is
-  one window, which is the unwindowed fill.
+- at most ``max(window, 3 * overlap)`` frames per window, as few windows as that allows, and the
+  recording shared evenly among them with overlaps of exactly ``overlap`` (windows no shorter
+  than ``3 * overlap``): most frames are solved once (12 000 frames are three windows of 4267
+  frames, not of 6000 with 3000-frame overlaps, which solved 1.5x the frames);
+- when the recording fits one window, that window is the unwindowed fill.
 
 Blending: each window's fill gets a weight that ramps linearly from its edges over ``overlap``
 frames (a cross-fade; no ramp at the recording's own ends), set to zero on every gap the window
@@ -53,10 +54,11 @@ def plan(missing: np.ndarray, window: int | None = WINDOW) -> Plan:
     seen = ~missing.all(axis=0)          # markers never observed are not filled at all
     longest = max((b - a for j, a, b in gap_runs(missing[:, seen])), default=0)
     overlap = max(MIN_OVERLAP, 2 * longest)
-    length = T if window is None else max(int(window), 3 * overlap)
-    if length >= T:
+    longest_window = T if window is None else max(int(window), 3 * overlap)
+    if longest_window >= T:
         return Plan(((0, T),), overlap)
-    n = math.ceil((T - overlap) / (length - overlap))
+    n = math.ceil((T - overlap) / (longest_window - overlap))
+    length = max(math.ceil((T + (n - 1) * overlap) / n) + 1, 3 * overlap)   # +1: rounded starts
     starts = np.round(np.linspace(0, T - length, n)).astype(int)
     return Plan(tuple((int(s), int(s) + length) for s in starts), overlap)
 
