@@ -54,6 +54,7 @@ class RigidPairs:
     duplicate: Tensor   # bool: one marker stored twice (distance <= tol * scale)
     scale: float        # median pairwise distance: the body's size
     tol: float = 0.005  # the rigidity tolerance, relative to ``scale``
+    wide: Tensor | None = None  # 95th percentile of |distance - median| while both are observed
 
     def partners(self, j: int, max_partners: int = 6) -> list[int]:
         """The largest clique of markers rigid with ``j`` and with one another, most rigid first
@@ -101,7 +102,7 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
     X = torch.where(observed[..., None], X, torch.nan)
     T, J = X.shape[:2]
     seen = torch.where(observed.any(dim=0), 0.0, torch.nan).to(X.dtype)   # a marker to itself
-    med, mad = torch.diag(seen), torch.diag(seen)
+    med, mad, wide = torch.diag(seen), torch.diag(seen), torch.diag(seen)
     n = torch.diag(observed.sum(dim=0))
     j, k = torch.triu_indices(J, J, 1, device=X.device)
     block = max(1, PAIR_BLOCK // max(T, 1))              # pairs at a time: memory ~ T x block
@@ -109,9 +110,11 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
         jb, kb = j[a:a + block], k[a:a + block]
         D = torch.linalg.vector_norm(X[:, jb] - X[:, kb], dim=-1)              # (T, pairs)
         m = torch.nanmedian(D, dim=0).values
-        s = 1.4826 * torch.nanmedian((D - m).abs(), dim=0).values
+        dev = (D - m).abs()
+        s = 1.4826 * torch.nanmedian(dev, dim=0).values
+        w = torch.nanquantile(dev, 0.95, dim=0)
         c = (observed[:, jb] & observed[:, kb]).sum(dim=0)
-        for out, v in ((med, m), (mad, s), (n, c)):
+        for out, v in ((med, m), (mad, s), (wide, w), (n, c)):
             out[jb, kb] = out[kb, jb] = v
     enough = n >= min_frames
     off = ~torch.eye(J, dtype=torch.bool, device=X.device)
@@ -119,7 +122,7 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
     scale = float(torch.median(med[finite])) if bool(finite.any()) else 1.0
     duplicate = finite & (med <= tol * scale)
     rigid = finite & (mad <= tol * scale)
-    return RigidPairs(med, mad, rigid, duplicate, scale, tol)
+    return RigidPairs(med, mad, rigid, duplicate, scale, tol, wide)
 
 
 def kabsch(P: Tensor, Q: Tensor) -> tuple[Tensor, Tensor]:
