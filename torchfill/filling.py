@@ -20,10 +20,10 @@ from .solvers.auto import holdout_std
 LONG_GAP_SECONDS = 10.0
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
-#: ``auto`` is not (yet) the default: on the 19-case mask suite it beats every single method (mean
-#: 4.05 mm vs tucker_tnn 7.60, experiments/results/auto.md), but on the real gaps of
-#: ktk_tennis_serve_nan it gives 10.11 mm against tucker_tnn's 7.21, raises the rigid-pair p95 on
-#: c3dorg_s26_walking_hybrid_1_5 to 70 mm (tucker_tnn 40) and takes 1.35x tucker_tnn's time.
+#: ``auto`` is not (yet) the default: it is the more accurate fill on simulated gaps (19-case mask
+#: suite, constraints on: mean 3.63 mm vs tucker_tnn 7.51, pma 4.21) and about as good on the real
+#: gaps of ktk_tennis_serve_nan (7.35 vs 7.21 mm), but it costs 4-5x tucker_tnn's time (226 vs 46 s over the suite), which long recordings
+#: cannot afford yet (README, "auto" and "Long recordings").
 DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
 
 
