@@ -15,10 +15,10 @@ changes. The post-step below takes the method's fill and, in this order:
    the observed trajectory in position and velocity (``x[a-1] + v``), the offset blended linearly
    across the gap (one-sided gaps are shifted);
 5. **soft rigid distances**: a filled sample whose distance to a rigid partner strays more than
-   ``SOFT_BAND`` times the pair's observed spread is moved back towards that band — for pairs whose
-   observed distances stay within ``SOFT_WIDE`` bands in 95 % of their frames (a median-based spread also calls a
-   pair rigid that is still most of the time and bends now and then: on hdm05_bd_05-01 such a pair
-   took one 208-frame gap from 2.5 to 46 mm),
+   ``SOFT_BAND`` times the pair's observed spread is moved back towards that band — for pairs
+   whose observed distances stay within ``SOFT_WIDE`` bands in 95 % of their frames (a
+   median-based spread also calls a pair rigid that is still most of the time and bends now and
+   then: on hdm05_bd_05-01 such a pair took one 208-frame gap from 2.5 to 46 mm),
    ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
    based projection, as MocapRecovery's skeleton constraint keeps neighbour distances);
 6. **no teleports**: inside each gap, one-frame steps longer than 1.5 x the recording's 99.9th
@@ -49,8 +49,8 @@ SOFT_BAND = 3.0
 SOFT_ITER = 10
 #: Soft distances hold a pair only if 95 % of its observed distances lie within this many bands
 #: of its median (a median-based spread alone also calls a pair rigid that bends now and then).
-#: Of 1 / 2 / 3 / 5 / off, 3 was never worse than off and better on hdm05 (bench_long 3000 frames
-#: 4.90 -> 1.96 mm, constraints_tucker gap 100 4.27 -> 3.67); 1 lost on constraints_cp (17.3 -> 21.2).
+#: Of 1 / 2 / 3 / 5 / off, 3 was never worse than off and better on hdm05 (bench_long 3000
+#: frames 4.90 -> 1.96 mm, constraints_tucker gap 100 0.72 -> 0.62); 1 lost on constraints_cp.
 SOFT_WIDE = 3.0
 #: Soft distances are projected on this many (frame, pair) entries at a time.
 SOFT_BLOCK = 1 << 18

@@ -22,8 +22,9 @@ LONG_GAP_SECONDS = 10.0
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
 #: ``auto`` is not (yet) the default: it is the more accurate fill on simulated gaps (19-case mask
 #: suite, constraints on: mean 3.63 mm vs tucker_tnn 7.51, pma 4.21) and about as good on the real
-#: gaps of ktk_tennis_serve_nan (7.35 vs 7.21 mm), but it costs 4-5x tucker_tnn's time (226 vs 46 s over the suite), which long recordings
-#: cannot afford yet (README, "auto" and "Long recordings").
+#: gaps of ktk_tennis_serve_nan (7.35 vs 7.21 mm), but it costs 4-5x tucker_tnn's time (226 vs
+#: 46 s over the suite), which long recordings cannot afford yet (README: "auto", "Long
+#: recordings").
 DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
 
 

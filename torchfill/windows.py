@@ -7,7 +7,7 @@ the number of frames and memory is bounded by one window. The plan is chosen fro
   observed context on each side, then lies whole inside at least one window;
 - at most ``max(window, 3 * overlap)`` frames per window, as few windows as that allows, and the
   recording shared evenly among them with overlaps of exactly ``overlap`` (windows no shorter
-  than ``3 * overlap``): most frames are solved once (12 000 frames are three windows of 4267
+  than ``3 * overlap``): most frames are solved once (12 000 frames are three windows of 4268
   frames, not of 6000 with 3000-frame overlaps, which solved 1.5x the frames);
 - when the recording fits one window, that window is the unwindowed fill.
 
