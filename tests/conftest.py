@@ -40,3 +40,19 @@ def recording(data_dir):
         return path
 
     return _get
+
+
+@pytest.fixture(scope="session")
+def walk():
+    """Factory: ``walk(T, J, seed)`` a smooth synthetic marker motion ``(T, J, 3)`` in mm, for
+    tests that need a small complete recording to cut gaps into."""
+
+    def _make(T: int = 150, J: int = 6, seed: int = 0):
+        import numpy as np
+
+        rng = np.random.default_rng(seed)
+        t = np.linspace(0, 3, T)[:, None, None]
+        phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
+        return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
+
+    return _make

@@ -11,19 +11,12 @@ import pytest
 from torchfill.cli import main
 
 
-def _walk(T=120, J=5, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 3, T)[:, None, None]
-    phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
-    return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
-
-
 @pytest.fixture
-def folder(tmp_path):
+def folder(tmp_path, walk):
     src = tmp_path / "in"
     src.mkdir()
     for k in range(3):
-        X = _walk(seed=k)
+        X = walk(120, 5, seed=k)
         X[30 + k:50 + k, 1] = np.nan
         X[80:90, 3] = np.nan
         np.savez(src / f"trial{k}.npz", points=X, labels=np.array([f"M{j}" for j in range(5)]),

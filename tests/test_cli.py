@@ -12,16 +12,9 @@ import pytest
 from torchfill.cli import main
 
 
-def _walk(T=150, J=6, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0, 3, T)[:, None, None]
-    phase = rng.uniform(0, 2 * np.pi, size=(1, J, 3))
-    return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
-
-
 @pytest.fixture
-def gappy_npz(tmp_path):
-    X = _walk()
+def gappy_npz(tmp_path, walk):
+    X = walk()
     X[40:70, 1] = np.nan
     X[100:110, 3] = np.nan
     path = tmp_path / "trial.npz"
