@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+import torchfill
 from torchfill.cli import main
 
 
@@ -123,3 +124,22 @@ def test_threads_option_sets_torch_threads_and_refuses_zero(gappy_npz, tmp_path,
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["torchfill: error: --threads expected >= 1, found 0"]
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_fill_dtype_reaches_fill(gappy_npz, tmp_path):
+    """``--dtype`` is fill()'s ``dtype``: the written fill is fill()'s in that dtype, observed
+    samples as read either way; an unknown dtype is a usage error (exit 2)."""
+    path, X = gappy_npz
+    given = np.load(path)["points"]
+    for dtype in ("float32", "float64"):
+        out = tmp_path / f"{dtype}.npz"
+        assert main(["fill", str(path), "-o", str(out), "-m", "svt", "-p", "max_iter=20", "-q",
+                     "--dtype", dtype]) == 0
+        Y = np.load(out)["points"]
+        assert np.array_equal(Y, torchfill.fill(given, "svt", max_iter=20, dtype=dtype))
+        assert Y.dtype == np.float64 and np.array_equal(Y[np.isfinite(X)], X[np.isfinite(X)])
+    assert not np.array_equal(np.load(tmp_path / "float32.npz")["points"],
+                              np.load(tmp_path / "float64.npz")["points"])
+    with pytest.raises(SystemExit) as err:
+        main(["fill", str(path), "-o", str(tmp_path / "x.npz"), "--dtype", "float16"])
+    assert err.value.code == 2

@@ -103,7 +103,7 @@ def _cmd_fill(args) -> int:
     seq = torchfill.read(args.input, **_pose_options(args))
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     torchfill.io.check_target(out_path)                 # refuse now, not after the fill
-    params = _parse_params(args.param) | _window(args)
+    params = _parse_params(args.param) | _window(args) | _dtype(args)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = torchfill.default_method() if args.method is None else args.method
@@ -167,7 +167,7 @@ def _cmd_fill_batch(args) -> int:
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    params = _parse_params(args.param) | _window(args)
+    params = _parse_params(args.param) | _window(args) | _dtype(args)
     if not args.constraints:
         params["constraints"] = False
     jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
@@ -324,6 +324,11 @@ def _default_output(path: Path) -> Path:
     return path.with_name(f"{path.stem}_filled{path.suffix}")
 
 
+def _dtype(args) -> dict:
+    """``fill()``'s ``dtype`` from ``--dtype`` (unset: the method's own)."""
+    return {"dtype": args.dtype} if args.dtype else {}
+
+
 def _window(args) -> dict:
     """``fill()``'s ``window`` from ``--window`` (0: the whole recording at once; unset: default)."""
     if args.window is None:
@@ -442,6 +447,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-constraints", dest="constraints", action="store_false",
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
+    p.add_argument("--dtype", choices=("float32", "float64"),
+                   help="what the method computes in (default: its own, float32 for tucker and "
+                        "tucker_tnn); observed samples are written as read either way")
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
     p.add_argument("-q", "--quiet", action="store_true")

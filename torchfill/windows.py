@@ -80,7 +80,7 @@ def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tens
         w = torch.where(torch.isfinite(part).all(dim=2), w, 0.0)
         num[a:b] += w[..., None] * torch.nan_to_num(part)
         den[a:b] += w
-    num /= den.clamp_min(1e-300)[..., None]          # in place: no more full-length copies
+    num /= den.clamp_min(torch.finfo(den.dtype).tiny)[..., None]          # in place: no more full-length copies
     num[den == 0] = torch.nan
     return num
 

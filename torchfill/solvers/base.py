@@ -184,6 +184,9 @@ class Solver(nn.Module):
 
     #: names of the data ``fit`` takes besides ``X`` and ``mask`` (e.g. ``("training",)``)
     fit_data: ClassVar[tuple[str, ...]] = ()
+    #: the dtype ``fill()`` runs this solver in unless told otherwise (None: the input's, float64);
+    #: the solver itself always follows the dtype it is given
+    fill_dtype: ClassVar[torch.dtype | None] = None
     #: old hyperparameter spellings, accepted for one release with a DeprecationWarning: old -> new
     renamed: ClassVar[dict[str, str]] = {}
     #: old names of fitted attributes (read with a DeprecationWarning): old -> new

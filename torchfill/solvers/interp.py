@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from .. import ops
 from .base import Param, Solver, register
@@ -48,9 +47,12 @@ class Linear(_Interpolator):
 class _ScipyInterpolator(_Interpolator):
     """Piecewise-cubic interpolation per column through SciPy (runs once, on the CPU)."""
 
-    kind: type
+    kind: str       # the scipy.interpolate class, imported on first use (0.8 s: not for every fill)
 
     def _interpolate(self, M, W):
+        import scipy.interpolate
+
+        kind = getattr(scipy.interpolate, self.kind)
         out = ops.interp_linear(M, W)  # ends held, unobserved columns 0
         Mn, Wn, On = M.cpu().numpy(), W.cpu().numpy(), out.cpu().numpy().copy()
         t = np.arange(M.shape[0])
@@ -59,7 +61,7 @@ class _ScipyInterpolator(_Interpolator):
             if obs.sum() < 3 or obs.all():
                 continue
             inside = ~obs & (t > t[obs][0]) & (t < t[obs][-1])
-            On[inside, j] = self.kind(t[obs], Mn[obs, j])(t[inside])
+            On[inside, j] = kind(t[obs], Mn[obs, j])(t[inside])
         return torch.as_tensor(On, dtype=M.dtype, device=M.device)
 
 
@@ -68,7 +70,7 @@ class Spline(_ScipyInterpolator):
     """Cubic spline (not-a-knot) through all observed samples of the column."""
 
     name = "spline"
-    kind = CubicSpline
+    kind = "CubicSpline"
 
 
 @register
@@ -76,4 +78,4 @@ class Pchip(_ScipyInterpolator):
     """Shape-preserving piecewise cubic Hermite interpolation (no overshoot)."""
 
     name = "pchip"
-    kind = PchipInterpolator
+    kind = "PchipInterpolator"
