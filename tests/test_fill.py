@@ -228,5 +228,6 @@ def test_default_fill_computes_in_float32_and_keeps_float64_observed_samples(rec
 
 
 def test_dtype_must_be_a_floating_dtype():
-    with pytest.raises(ValueError, match="dtype expected"):
-        torchfill.fill(walk(), "linear", dtype="int32")
+    for bad in ("int32", "float16", torch.bfloat16, "double precision"):
+        with pytest.raises(ValueError, match="dtype expected"):
+            torchfill.fill(walk(), "linear", dtype=bad)

@@ -182,7 +182,7 @@ def _work_dtype(dtype, solver) -> torch.dtype | None:
     if dtype is None:
         return solver.fill_dtype
     found = getattr(torch, dtype, None) if isinstance(dtype, str) else dtype
-    if not isinstance(found, torch.dtype) or not found.is_floating_point:
+    if found not in (torch.float32, torch.float64):
         raise ValueError(f"dtype expected 'float32' or 'float64', found {dtype!r}")
     return found
 
