@@ -130,3 +130,46 @@ def test_real_recording_beats_linear(recording, method):
     assert err < 0.5 * err_lin, f"{method} {err:.2f} mm vs linear {err_lin:.2f} mm"
     assert np.array_equal(out[~mask], P[~mask])                        # observed samples unchanged
     assert np.isfinite(out).all()
+
+
+def _schedule_lengths(monkeypatch, X, **params):
+    """Iterations each eps schedule ran (from the solver's own schedule switches)."""
+    starts = []
+    orig = tk.Tucker._next_schedule
+
+    def record(self):
+        starts.append(self.n_iter_ + 1)
+        orig(self)
+
+    monkeypatch.setattr(tk.Tucker, "_next_schedule", record)
+    solver = get_solver("tucker_tnn", **params).fit(torch.as_tensor(X))
+    return starts, solver
+
+
+@pytest.mark.parametrize("ratio, ends_at_trial", [(0.0, True), (float("inf"), False)])
+def test_a_later_eps_schedule_far_behind_ends_after_its_trial(walk, monkeypatch, ratio, ends_at_trial):
+    X = walk(T=200, J=6)
+    X[gaps.multi_gap(200, 6, n_markers=3, gap_length=20, max_gaps=2, seed=0)] = np.nan
+    monkeypatch.setattr(tk, "EPS_TRIAL_RATIO", ratio)    # 0: always far behind; inf: never
+    monkeypatch.setattr(tk, "EPS_TRIAL_MIN", 1)
+    (start,), solver = _schedule_lengths(monkeypatch, X, eps_trial=200 * 10, patience=30,
+                                         eps=(0.5, 1e-4), tol=1e-2,
+                                         max_iter=400)
+    second = solver.search_end_iter_ - start
+    assert second == 10 if ends_at_trial else second > 10, second   # trial: eps_trial / T
+
+
+def test_the_next_window_runs_only_the_chosen_eps_schedule(walk, monkeypatch):
+    X = walk(T=600, J=6)
+    X[gaps.multi_gap(600, 6, n_markers=3, gap_length=30, max_gaps=2, seed=1)] = np.nan
+    seen = []
+    orig = tk.Tucker._initialize
+
+    def record(self):
+        seen.append(self.eps)
+        orig(self)
+
+    monkeypatch.setattr(tk.Tucker, "_initialize", record)
+    torchfill.fill(X, "tucker_tnn", window=300, constraints=False)
+    assert len(seen) > 2 and seen[0] == (1e-2, 1e-4)
+    assert all(eps in ([1e-2], [1e-4]) for eps in seen[1:]), seen
