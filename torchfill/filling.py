@@ -233,6 +233,7 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
     solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
     solver = get_solver(method, **params)
     filled = solver.fit(X, missing, callback=progress, **extra).transform(X)
+    params.update(solver.carry())               # the next window reuses what this one chose
     info["n_iter"] += solver.n_iter_
     if stds is not None:
         est = getattr(solver, "std_", None)

@@ -363,6 +363,11 @@ class Solver(nn.Module):
         est = self.forward().to(X.dtype if X.is_floating_point() else torch.float64)
         return torch.where(self.Omega_, X.to(est.dtype), est)
 
+    def carry(self) -> dict[str, Any]:
+        """Hyperparameters the next window of the same recording is filled with (what this fit
+        chose on its observed samples and the next window need not search again); none here."""
+        return {}
+
     def forward(self) -> Tensor:
         """The current full estimate, in the units of the input."""
         return self._estimate() * self.sigma_ + self.mu_
