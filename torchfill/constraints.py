@@ -250,6 +250,8 @@ def _to_markers(V: np.ndarray, S: np.ndarray) -> np.ndarray:
     def through(A):                                                    # one (T D) x P x J product
         return (A.transpose(0, 2, 1).reshape(T * D, P) @ S).reshape(T, D, -1).transpose(0, 2, 1)
 
+    if not bad.any():
+        return through(V)
     out = through(np.where(bad, 0.0, V))
     out[through(bad.astype(float)) > 0] = np.nan
     return out

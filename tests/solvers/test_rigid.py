@@ -8,7 +8,7 @@ import torch
 
 import torchfill
 from torchfill import metrics
-from torchfill.solvers.rigid import kabsch, rigid_fill, rigid_pairs
+from torchfill.solvers.rigid import _upper_nanquantile, kabsch, rigid_fill, rigid_pairs
 
 
 def _rotation(rng) -> np.ndarray:
@@ -44,6 +44,17 @@ def _segment_motion(T=300, seed=0):
         out.append(np.einsum("tcd,kd->tkc", R, shape) + trans[:, None])
     free = 400 * np.stack([np.sin(3 * time), np.cos(2 * time), time], 1)[:, None]
     return np.concatenate(out + [free], axis=1)
+
+
+@pytest.mark.parametrize("T", [1, 2, 3, 7, 20, 101, 3000])
+def test_upper_nanquantile_is_torch_nanquantile(T):
+    g = torch.Generator().manual_seed(T)
+    D = torch.rand(T, 40, generator=g, dtype=torch.float64)
+    D[torch.rand(T, 40, generator=g) < 0.3] = torch.nan
+    D[:, 0] = torch.nan                                       # a pair never seen together
+    got, want = _upper_nanquantile(D, 0.95), torch.nanquantile(D, 0.95, dim=0)
+    assert torch.equal(torch.isnan(got), torch.isnan(want))
+    torch.testing.assert_close(got.nan_to_num(), want.nan_to_num(), rtol=0, atol=1e-15)
 
 
 def test_rigid_pairs_are_the_segments():

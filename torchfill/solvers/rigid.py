@@ -81,6 +81,9 @@ PAIR_BLOCK = 1 << 20
 #: Pair statistics read at most this many frames, evenly spaced: their sort took 23 of the
 #: constraints' 30 s at 120 000 frames; 12 000 leaves every recording of ../shared/data whole.
 PAIR_FRAMES = 12000
+#: The hold-out error of a rigid fill is measured on at most this many evenly spaced reference
+#: frames (its batched 3 x 3 SVDs were 0.38 of the constraints' 1.3 s at 3 000 frames).
+HOLDOUT_FRAMES = 500
 
 
 def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005,
@@ -120,7 +123,7 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
         m = torch.nanmedian(D, dim=0).values
         dev = (D - m).abs()
         s = 1.4826 * torch.nanmedian(dev, dim=0).values
-        w = torch.nanquantile(dev, 0.95, dim=0)
+        w = _upper_nanquantile(dev, 0.95)
         c = (observed[:, jb] & observed[:, kb]).sum(dim=0)
         for out, v in ((med, m), (mad, s), (wide, w), (n, c)):
             out[jb, kb] = out[kb, jb] = v
@@ -131,6 +134,20 @@ def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005
     duplicate = finite & (med <= tol * scale)
     rigid = finite & (mad <= tol * scale)
     return RigidPairs(med, mad, rigid, duplicate, scale, tol, wide)
+
+
+def _upper_nanquantile(D: Tensor, q: float) -> Tensor:
+    """``torch.nanquantile(D, q, dim=0)`` (linear interpolation) for ``q >= 0.5`` from the top
+    ``(1 - q) T + 2`` values of each column (a partial selection, not a full sort: 72 vs 223 ms
+    for 3 000 frames x 820 pairs); the same values."""
+    T = D.shape[0]
+    n = (~torch.isnan(D)).sum(dim=0)
+    k = min(T, int((1 - q) * (T - 1)) + 2)
+    top = torch.topk(torch.nan_to_num(D, nan=-torch.inf), k, dim=0).values     # descending
+    p = q * (n - 1).clamp(min=0).to(D.dtype)
+    lo, hi = p.floor().long(), p.ceil().long()
+    below, above = (top.gather(0, ((n - 1) - i).clamp(0, k - 1)[None])[0] for i in (lo, hi))
+    return torch.where(n > 0, torch.lerp(below, above, p - lo.to(D.dtype)), torch.nan)
 
 
 def kabsch(P: Tensor, Q: Tensor) -> tuple[Tensor, Tensor]:
@@ -166,6 +183,8 @@ def _holdout_error(X: Tensor, j: int, S: list[int], refs: np.ndarray, reach: int
     if not ok.any():
         return np.inf
     src, dst = refs[ok], refs[later[ok]]
+    pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES)).round().astype(int))
+    src, dst = src[pick], dst[pick]
     err = _carry(X, j, S, src, dst) - X[dst, j]
     return float(torch.sqrt((err ** 2).sum(dim=1).mean()))
 
