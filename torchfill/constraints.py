@@ -214,47 +214,42 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
         return
     d0 = pairs.distance.cpu().numpy()[j, k]
     band = band[j, k]
-    Sj, Sk = (np.eye(F.shape[1])[idx] for idx in (j, k))                # pair -> marker (P x J)
     rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
     size = max(1, SOFT_BLOCK // j.size)
     for a in range(0, rows.size, size):
         t = rows[a:a + size]
         G = F[t]
-        _project_distances(G, free[t], j, k, d0, band, Sj, Sk)
+        _project_distances(G, free[t], j, k, d0, band)
         F[t] = G
 
 
-def _project_distances(F, free, j, k, d0, band, Sj, Sk) -> None:
-    """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place)."""
+def _project_distances(F, free, j, k, d0, band) -> None:
+    """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place), over the
+    (frame, pair) entries with a free member only (a few of the pairs in each frame)."""
+    T, J, D = F.shape
+    t, p = np.nonzero(free[:, j] | free[:, k])
+    a, b, d0, band = j[p], k[p], d0[p], band[p]
+    fa, fb = free[t, a], free[t, b]
+    share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
+    ia, ib = t * J + a, t * J + b
     for _ in range(SOFT_ITER):
-        diff = F[:, j] - F[:, k]                                           # (T, P, 3)
-        n = np.linalg.norm(diff, axis=2)
+        diff = F[t, a] - F[t, b]                                           # (entries, D)
+        n = np.linalg.norm(diff, axis=1)
         err = np.clip(n - d0, -band, band) - (n - d0)      # back inside the observed band
-        use = (free[:, j] | free[:, k]) & np.isfinite(n) & (n > 0) & (err != 0)
+        use = np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():
             return
-        share_j = np.where(free[:, k], 0.5, 1.0) * free[:, j] * use
-        share_k = np.where(free[:, j], 0.5, 1.0) * free[:, k] * use
-        step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[..., None] * diff
-        C = _to_markers(share_j[..., None] * step, Sj) - _to_markers(share_k[..., None] * step, Sk)
-        count = (share_j > 0) @ Sj + (share_k > 0) @ Sk
-        F += np.nan_to_num(C / np.maximum(count, 1)[..., None])
+        step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[:, None] * diff
+        sa, sb = share_a * use, share_b * use
+        C = np.stack([_sum_at(ia, sa * step[:, c], T * J) - _sum_at(ib, sb * step[:, c], T * J)
+                      for c in range(D)], axis=1)
+        count = _sum_at(ia, sa > 0, T * J) + _sum_at(ib, sb > 0, T * J)
+        F += np.nan_to_num(C / np.maximum(count, 1)[:, None]).reshape(F.shape)
 
 
-def _to_markers(V: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Per-pair vectors ``V`` (T, P, D) summed onto markers through the pair -> marker matrix ``S``
-    (P, J): (T, J, D), NaN wherever a NaN was summed in (as an unbuffered add would give)."""
-    T, P, D = V.shape
-    bad = np.isnan(V)
-
-    def through(A):                                                    # one (T D) x P x J product
-        return (A.transpose(0, 2, 1).reshape(T * D, P) @ S).reshape(T, D, -1).transpose(0, 2, 1)
-
-    if not bad.any():
-        return through(V)
-    out = through(np.where(bad, 0.0, V))
-    out[through(bad.astype(float)) > 0] = np.nan
-    return out
+def _sum_at(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """``out[index[i]] += values[i]`` over a zero vector of ``size`` (NaN where a NaN was added)."""
+    return np.bincount(index, weights=values, minlength=size)
 
 
 def _limit_steps(F, missing, limit: float, report) -> None:
