@@ -2,6 +2,7 @@
 same kind of object it was given, observed samples bit-for-bit unchanged."""
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -15,6 +16,8 @@ from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
 from .solvers.auto import holdout_std
+
+_LOCK = threading.Lock()
 
 #: Gaps longer than this (seconds) filled without rigid donors are named in a warning.
 LONG_GAP_SECONDS = 10.0
@@ -44,7 +47,7 @@ def default_method() -> str:
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
          window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
          constraints: bool = True, extrapolate: float | None = 0.25, return_std: bool = False,
-         dtype=None, **params):
+         dtype=None, workers: int | None = None, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -85,6 +88,10 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         method's ``fill_dtype``, float32 for ``tucker`` and ``tucker_tnn`` -- about twice as fast
         -- else float64). Only the filled samples come from that computation: the observed ones
         and the output's dtype are the input's.
+    workers : int, optional
+        Windows solved at once, in threads that share torch's intra-op threads out (default and
+        most: that thread count, ``torch.get_num_threads()``; on CPU only). The fill is the same for any
+        number (each window's solve is seeded and single-window; the blend runs in window order).
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -105,6 +112,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
     if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 2):
         raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers expected an int >= 1 or None, found {workers!r}")
     training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
@@ -147,8 +156,12 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
         stds = {} if return_std else None
+        index = {w: k for k, w in enumerate(plan.windows)}
+        shown = None if progress is None else lambda a, b: lambda d: progress(
+            {**d, "window": index[a, b] + 1, "windows": len(index)})
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-            method, params, extra, Xk[a:b], unfit[a:b, keep], progress, info, stds, (a, b), constraints))
+            method, params, extra, Xk[a:b], unfit[a:b, keep], shown and shown(a, b), info, stds,
+            (a, b), constraints), workers=1 if Xk.device.type != "cpu" else workers)
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
         if return_std:
             part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
@@ -233,8 +246,9 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
     solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
     solver = get_solver(method, **params)
     filled = solver.fit(X, missing, callback=progress, **extra).transform(X)
-    params.update(solver.carry())               # the next window reuses what this one chose
-    info["n_iter"] += solver.n_iter_
+    with _LOCK:                                 # windows may be solved in threads
+        params.update(solver.carry())           # the next window reuses what this one chose
+        info["n_iter"] += solver.n_iter_
     if stds is not None:
         est = getattr(solver, "std_", None)
         if est is None:

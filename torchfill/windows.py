@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,13 +64,18 @@ def plan(missing: np.ndarray, window: int | None = WINDOW) -> Plan:
     return Plan(tuple((int(s), int(s) + length) for s in starts), overlap)
 
 
-def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tensor]) -> torch.Tensor:
+def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tensor],
+          workers: int | None = 1) -> torch.Tensor:
     """Fill every window with ``solve(start, stop)`` (a ``(stop - start, J, D)`` tensor) and blend
-    the fills with :func:`weight` (any number of coordinates); one window's fill is held at a time. NaN where no window fills."""
+    the fills with :func:`weight` (any number of coordinates), in window order whatever order they
+    finish in. NaN where no window fills. The first window is solved alone (what it chooses may
+    carry to the others, see :meth:`Solver.carry`) with all of torch's threads, the others
+    ``workers`` at a time (None: torch's thread count, also the most) in threads that share
+    torch's threads out (its kernels release the GIL); with one worker one window's fill is held
+    at a time."""
     T, J = missing.shape
     num = den = None
-    for k, (a, b) in enumerate(p.windows):
-        part = solve(a, b)
+    for k, (a, b), part in _solved(p, solve, workers):
         if len(p.windows) == 1:
             return part
         w = torch.as_tensor(weight(p, k, missing[a:b].cpu().numpy(), T), dtype=part.dtype,
@@ -83,6 +89,24 @@ def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tens
     num /= den.clamp_min(torch.finfo(den.dtype).tiny)[..., None]          # in place: no more full-length copies
     num[den == 0] = torch.nan
     return num
+
+
+def _solved(p: Plan, solve: Callable[[int, int], torch.Tensor], workers: int | None):
+    """``(k, (start, stop), fill)`` for every window, in order (see :func:`blend`)."""
+    first, *rest = p.windows
+    yield 0, first, solve(*first)
+    threads = torch.get_num_threads()
+    workers = min(workers or threads, threads, len(rest))
+    if workers <= 1:
+        yield from ((k, w, solve(*w)) for k, w in enumerate(rest, 1))
+        return
+    torch.set_num_threads(threads // workers)
+    try:
+        with ThreadPoolExecutor(workers, thread_name_prefix="torchfill-window") as pool:
+            yield from ((k, w, part) for k, (w, part) in
+                        enumerate(zip(rest, pool.map(lambda w: solve(*w), rest)), 1))
+    finally:
+        torch.set_num_threads(threads)
 
 
 def weight(p: Plan, k: int, missing: np.ndarray, T: int) -> np.ndarray:
