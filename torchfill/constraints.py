@@ -85,7 +85,9 @@ class ConstraintReport:
 
 
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
-              names=None, pairs: RigidPairs | None = None) -> tuple[np.ndarray, ConstraintReport]:
+              names=None, pairs: RigidPairs | None = None,
+              donors: tuple[np.ndarray, np.ndarray] | None = None
+              ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
     Parameters
@@ -102,6 +104,9 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         Marker names for the warnings.
     pairs : RigidPairs, optional
         Precomputed rigidity (default: found from the observed samples).
+    donors : (array (T, J, D), bool array (T, J)), optional
+        Precomputed :func:`rigid_donors` of the same observed samples (they do not depend on the
+        fill: ``auto`` constrains every candidate's fill with one).
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
@@ -111,12 +116,13 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         return F, report
     done = np.zeros_like(missing)
     if F.shape[2] == 3:             # 2-D keypoints are projections: no rigid segments to keep
-        X = torch.from_numpy(np.where(observed[..., None], F, np.nan))
-        pairs = pairs if pairs is not None else rigid_pairs(X, torch.from_numpy(observed))
-        R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
-        done = done.numpy() & missing
-        F[done] = R.numpy()[done]
-        del X, R                        # long recordings: two full-length copies fewer from here
+        if pairs is None:
+            pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], F, np.nan)),
+                                torch.from_numpy(observed))
+        R, done = donors if donors is not None else rigid_donors(F, observed, pairs)
+        done = done & missing
+        F[done] = R[done]
+        del R                           # long recordings: a full-length copy fewer from here
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
     if long is not None:
@@ -134,6 +140,14 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     F[observed] = np.asarray(filled, dtype=np.float64)[observed]
     _warn(report, names)
     return F, report
+
+
+def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1's rigid-body fill from the ``observed`` samples of ``filled`` (T, J, 3): the fill
+    (NaN where no donors) and the (T, J) samples it fills."""
+    X = torch.from_numpy(np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan))
+    R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
+    return R.numpy(), done.numpy()
 
 
 def _runs(mask: np.ndarray, T: int):

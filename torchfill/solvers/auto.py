@@ -335,9 +335,11 @@ class Auto(Solver):
         solver = get_solver(name, **params)
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
                 if k in solver.fit_data}                  # training data in the fit's units
+        work = solver.fill_dtype or X.dtype            # as fill() runs it (tucker_tnn: float32)
+        data = {k: [t.to(work) for t in v] for k, v in data.items()}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out = solver.fit_transform(X, fit_missing, **data)
+            out = solver.fit_transform(X.to(work), fit_missing, **data)
         if not bool(torch.isfinite(out).all()):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
@@ -381,19 +383,20 @@ class Auto(Solver):
         donor = torch.zeros_like(missing)
         if not self.constraints or fills.shape[0] == 0:
             return fills, donor
-        from ..constraints import constrain                    # fill()'s post-step, one home
+        from ..constraints import constrain, rigid_donors      # fill()'s post-step, one home
         from .rigid import rigid_pairs
 
         miss = missing.cpu().numpy()
-        pairs = None
-        if fills.shape[-1] == 3:
+        pairs = donors = None
+        if fills.shape[-1] == 3:       # the same rigid pairs and donors for every candidate
             X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
             pairs = rigid_pairs(X, ~missing.cpu())
+            donors = rigid_donors(X.numpy(), ~miss, pairs)
         out = []
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             for F in fills:
-                G, report = constrain(F.cpu().numpy(), miss, pairs=pairs)
+                G, report = constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
                 out.append(torch.from_numpy(G))
         if report.rigid_done is not None:
             donor = torch.as_tensor(report.rigid_done, device=missing.device)
