@@ -17,6 +17,11 @@ cuts (a gap that does not have an observed frame of that marker, or the recordin
 sides inside the window), then normalized across windows. A gap's fill is therefore a convex
 combination, smooth in time, of the fills of the windows that hold it whole. Observed samples are
 not blended: ``fill()`` only writes missing samples.
+
+Order: the first window is solved alone; what its solver chose (``Solver.carry``: Tucker's ``eps``
+schedule) is reused by the others, which run in threads, each on its share of torch's threads
+(bench_long 120 000 frames on 2 cores: 96 s one window at a time with 2 threads, 52 s two at a
+time with one each).
 """
 from __future__ import annotations
 
