@@ -99,23 +99,6 @@ def test_cli_writes_std_csv(tmp_path):
     assert np.isfinite(S[missing]).all() and np.isnan(S[~missing]).all()
 
 
-def test_candidates_compute_in_their_fill_dtype(monkeypatch):
-    """auto scores each candidate as fill() runs it (tucker_tnn in float32), observed unchanged."""
-    from torchfill.solvers.base import Solver
-    seen = {}
-    fit = Solver.fit
-
-    def record(self, X, *args, **kwargs):
-        seen.setdefault(self.name, set()).add(X.dtype)
-        return fit(self, X, *args, **kwargs)
-
-    monkeypatch.setattr(Solver, "fit", record)
-    X = _gappy()
-    out = torchfill.fill(X, "auto", candidates=["pchip", "tucker_tnn"])
-    assert seen["tucker_tnn"] == {torch.float32} and seen["pchip"] == {torch.float64}
-    assert out.dtype == np.float64 and np.array_equal(out[np.isfinite(X)], X[np.isfinite(X)])
-
-
 def test_unknown_candidate_is_an_error():
     with pytest.raises(ValueError, match="candidates expected"):
         get_solver("auto", candidates=["pchip", "not_a_method"])

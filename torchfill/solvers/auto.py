@@ -335,11 +335,9 @@ class Auto(Solver):
         solver = get_solver(name, **params)
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
                 if k in solver.fit_data}                  # training data in the fit's units
-        work = solver.fill_dtype or X.dtype            # as fill() runs it (tucker_tnn: float32)
-        data = {k: [t.to(work) for t in v] for k, v in data.items()}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            out = solver.fit_transform(X.to(work), fit_missing, **data)
+            out = solver.fit_transform(X, fit_missing, **data)
         if not bool(torch.isfinite(out).all()):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
