@@ -4,6 +4,7 @@ bit-for-bit, and on a real recording a windowed low-rank fill stays close to the
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -99,6 +100,20 @@ def test_default_fill_in_window_threads_is_as_accurate_as_the_serial_fill(record
     # then keep another iterate: a few samples move by mm, the accuracy does not
     err, err_serial = (metrics.rmse_missing(f, truth, mask) for f in (threaded, serial))
     assert abs(err - err_serial) <= 0.1 * err_serial, (err, err_serial)
+
+
+def test_windows_in_threads_leave_the_warning_filters_as_they_were(recording, monkeypatch):
+    """auto silences its candidates' warnings in every window; interleaved, those contexts could
+    leave ``ignore`` installed for good."""
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)     # two window threads, any machine
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
+    truth = torchfill.read(recording("cmu_85_02.c3d")).points[:, :12]
+    mask = gaps.multi_gap(*truth.shape[:2], n_markers=4, gap_length=20, max_gaps=2, seed=1)
+    given = np.where(mask[..., None], np.nan, truth)
+    before = list(warnings.filters)
+    torchfill.fill(given, "auto", candidates=["pchip", "svt"], window=120, workers=2,
+                   constraints=False)
+    assert warnings.filters == before
 
 
 def test_window_is_validated():

@@ -26,6 +26,7 @@ time with one each).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -106,8 +107,11 @@ def _solved(p: Plan, solve: Callable[[int, int], torch.Tensor], workers: int | N
         yield from ((k, w, solve(*w)) for k, w in enumerate(rest, 1))
         return
     torch.set_num_threads(threads // workers)
+    # solvers that silence warnings (warnings.catch_warnings is not thread-safe) could leave the
+    # filters changed when two of them interleave: restore the caller's filters after the pool
     try:
-        with ThreadPoolExecutor(workers, thread_name_prefix="torchfill-window") as pool:
+        with warnings.catch_warnings(), ThreadPoolExecutor(
+                workers, thread_name_prefix="torchfill-window") as pool:
             yield from ((k, w, part) for k, (w, part) in
                         enumerate(zip(rest, pool.map(lambda w: solve(*w), rest)), 1))
     finally:
