@@ -69,6 +69,7 @@ IEEE Access 8, 76980-76990 (2020), doi:10.1109/ACCESS.2020.2989744.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
 from typing import Any
 
@@ -81,6 +82,7 @@ Tensor = torch.Tensor
 
 _CACHE: "OrderedDict[tuple, Any]" = OrderedDict()
 _CACHE_SIZE = 16
+_CACHE_LOCK = threading.Lock()
 
 
 # -- small pure helpers ------------------------------------------------------------------------
@@ -135,13 +137,15 @@ def _fingerprint(items: list[Tensor]) -> str:
 
 
 def _cached(key: tuple, make):
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
+    with _CACHE_LOCK:                   # fill() may solve windows in threads
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
     value = make()
-    _CACHE[key] = value
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
+    with _CACHE_LOCK:
+        _CACHE[key] = value
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
     return value
 
 
