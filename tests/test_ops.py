@@ -222,3 +222,28 @@ def test_interp_linear_unobserved_column_is_zero_and_no_nan():
     assert torch.equal(out[:, 0], torch.zeros(10, dtype=torch.float64))
     torch.testing.assert_close(out[:, 1], torch.tensor([0, 1, 2, 3, 4, 5, 6, 7, 8, 9.0],
                                                        dtype=torch.float64))
+
+
+def test_thread_map_keeps_order_shares_threads_and_restores_them(monkeypatch):
+    import threading
+    import time
+
+    from torchfill.ops import thread_map
+
+    state = {"n": 4}
+    monkeypatch.setattr(torch, "get_num_threads", lambda: state["n"])
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: state.update(n=n))
+    seen = []
+
+    def work(k):
+        time.sleep(0.01 * (5 - k))                       # the later items finish first
+        seen.append((threading.current_thread().name, state["n"]))
+        inner = list(thread_map(lambda x: threading.current_thread().name, [0, 1]))
+        assert len(set(inner)) == 1                       # nested: serial, in this thread
+        return k * k
+
+    assert list(thread_map(work, range(5), workers=2)) == [0, 1, 4, 9, 16]
+    assert {n for _, n in seen} == {2} and state["n"] == 4          # 4 threads // 2 workers
+    assert len({name for name, _ in seen}) == 2
+    assert list(thread_map(work, range(3), workers=1)) == [0, 1, 4]    # serial: all threads
+    assert seen[-1] == (threading.current_thread().name, 4)

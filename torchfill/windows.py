@@ -26,15 +26,14 @@ time with one each).
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from .metrics import gap_runs
+from .ops.threads import thread_map
 
 #: Default window length in frames (chosen on accuracy and speed, see the README's "Long recordings").
 WINDOW = 6000
@@ -101,21 +100,8 @@ def _solved(p: Plan, solve: Callable[[int, int], torch.Tensor], workers: int | N
     """``(k, (start, stop), fill)`` for every window, in order (see :func:`blend`)."""
     first, *rest = p.windows
     yield 0, first, solve(*first)
-    threads = torch.get_num_threads()
-    workers = min(workers or threads, threads, len(rest))
-    if workers <= 1:
-        yield from ((k, w, solve(*w)) for k, w in enumerate(rest, 1))
-        return
-    torch.set_num_threads(threads // workers)
-    # solvers that silence warnings (warnings.catch_warnings is not thread-safe) could leave the
-    # filters changed when two of them interleave: restore the caller's filters after the pool
-    try:
-        with warnings.catch_warnings(), ThreadPoolExecutor(
-                workers, thread_name_prefix="torchfill-window") as pool:
-            yield from ((k, w, part) for k, (w, part) in
-                        enumerate(zip(rest, pool.map(lambda w: solve(*w), rest)), 1))
-    finally:
-        torch.set_num_threads(threads)
+    parts = thread_map(lambda w: solve(*w), rest, workers)
+    yield from ((k, w, part) for k, (w, part) in enumerate(zip(rest, parts), 1))
 
 
 def weight(p: Plan, k: int, missing: np.ndarray, T: int) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 * :mod:`.tensor` -- unfoldings, mode products, Tucker/CP reconstructions, Khatri-Rao, MTTKRP, HOSVD;
 * :mod:`.spectral` -- singular value thresholding, the Gram-matrix SVD, energy rank, soft threshold;
-* :mod:`.time` -- interpolation starts, temporal difference operators, run-lengths of masks.
+* :mod:`.time` -- interpolation starts, temporal difference operators, run-lengths of masks;
+* :mod:`.threads` -- independent pieces of work in threads that share torch's threads out.
 
 Plain functions of torch tensors (device and dtype follow the input); nothing here imports
 another torchfill module.
@@ -10,10 +11,11 @@ another torchfill module.
 from .spectral import energy_rank, gram_svd, orthonormalize, soft_threshold, svt, thin_side
 from .tensor import (cp_to_tensor, fold, hosvd, khatri_rao, mode_dot, mttkrp, multi_mode_dot,
                      tucker_to_tensor, unfold)
+from .threads import thread_map
 from .time import (difference, difference_adjoint, difference_gram, interp_linear,
                    interp_relative, runs)
 
 __all__ = ["cp_to_tensor", "difference", "difference_adjoint", "difference_gram", "energy_rank",
            "fold", "gram_svd", "hosvd", "interp_linear", "interp_relative", "khatri_rao",
            "mode_dot", "mttkrp", "multi_mode_dot", "orthonormalize", "runs", "soft_threshold",
-           "svt", "thin_side", "tucker_to_tensor", "unfold"]
+           "svt", "thin_side", "thread_map", "tucker_to_tensor", "unfold"]

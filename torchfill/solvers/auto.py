@@ -41,10 +41,12 @@ constraints and model averaging", PLoS ONE 13(7): e0199744 (2018).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
 
 import torch
 
 from .. import ops
+from ..ops.threads import thread_map
 from .base import Param, Solver, available, get_solver, register
 from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
@@ -342,16 +344,28 @@ class Auto(Solver):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
 
+    def _attempt(self, name: str, fit_missing: Tensor) -> Tensor | Exception:
+        """:meth:`_fit_one`, or the error that drops the candidate."""
+        try:
+            return self._fit_one(name, fit_missing)
+        except FAILURES as err:
+            return err
+
+    def _fit_all(self, names: list[str], fit_missing: Tensor) -> Iterator:
+        """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``)."""
+        workers = None if self.M_.device.type == "cpu" else 1
+        return thread_map(lambda name: self._attempt(name, fit_missing), names, workers)
+
     def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:
         """Each candidate fitted once with ``fit_missing`` hidden: names and fills (C, T, J, 3)."""
         names, fills = [], []
-        for name in self.candidate_names():
-            try:
-                fills.append(self._fit_one(name, fit_missing))
-            except FAILURES as err:
-                self.dropped_[name] = str(err)
+        every = self.candidate_names()
+        for name, out in zip(every, self._fit_all(every, fit_missing)):
+            if isinstance(out, Exception):
+                self.dropped_[name] = str(out)
                 continue
             names.append(name)
+            fills.append(out)
         if not names:
             raise ValueError(f"{self.name}: every candidate failed on this recording: "
                              + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
@@ -364,11 +378,11 @@ class Auto(Solver):
         hold-out fills; and the (T, J) samples that rigid donors fill."""
         fills = fills.clone()
         done = [c for c in range(len(names)) if bool((w[c][gaps] > 0).any())]
-        for c in list(done):
-            try:
-                fills[c] = torch.where(gaps[..., None], self._fit_one(names[c], gaps), fills[c])
-            except FAILURES:
+        for c, out in zip(list(done), self._fit_all([names[c] for c in done], gaps)):
+            if isinstance(out, Exception):
                 done.remove(c)
+            else:
+                fills[c] = torch.where(gaps[..., None], out, fills[c])
         refits, donor = self._constrain(fills[done], gaps)
         fills[done] = torch.where(gaps[..., None], refits, fills[done])
         return fills, donor
