@@ -154,3 +154,15 @@ def test_cli_window_reaches_fill(tmp_path):
     assert not np.array_equal(np.load(tmp_path / "out300.npz")["points"],
                               np.load(tmp_path / "out0.npz")["points"])   # 3 windows vs 1
     assert main(["fill", str(src), "-o", str(tmp_path / "x.npz"), "--window", "-5"]) == 2
+
+
+def test_progress_names_the_window(walk):
+    X = walk(T=900, J=6)
+    mask = gaps.multi_gap(900, 6, n_markers=3, gap_length=30, max_gaps=2, seed=0)
+    given = np.where(mask[..., None], np.nan, X)
+    seen = []
+    torchfill.fill(given, "svt", window=300, workers=1, progress=seen.append)
+    n = len(windows.plan(mask, 300).windows)
+    assert n > 2 and {d["windows"] for d in seen} == {n}
+    assert {d["window"] for d in seen} == set(range(1, n + 1))
+    assert list(seen[0])[:2] == ["window", "windows"] and "iter" in seen[0]

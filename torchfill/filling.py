@@ -158,7 +158,7 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         stds = {} if return_std else None
         index = {w: k for k, w in enumerate(plan.windows)}
         shown = None if progress is None else lambda a, b: lambda d: progress(
-            {**d, "window": index[a, b] + 1, "windows": len(index)})
+            {"window": index[a, b] + 1, "windows": len(index), **d})     # shown first
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
             method, params, extra, Xk[a:b], unfit[a:b, keep], shown and shown(a, b), info, stds,
             (a, b), constraints), workers=1 if Xk.device.type != "cpu" else workers)
