@@ -90,8 +90,10 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         and the output's dtype are the input's.
     workers : int, optional
         Windows solved at once, in threads that share torch's intra-op threads out (default and
-        most: that thread count, ``torch.get_num_threads()``; on CPU only). The fill is the same for any
-        number (each window's solve is seeded and single-window; the blend runs in window order).
+        most: that thread count, ``torch.get_num_threads()``; on CPU only; see
+        :func:`torchfill.ops.thread_map`). The first window runs alone and the fills blend in
+        window order, so a fill does not depend on which window finishes first; it does depend on
+        the threads per window, which change how float32 sums round (accuracy the same).
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
