@@ -9,19 +9,25 @@ Recordings are tiled in time (hdm05_bd_05-01_01_120 followed by hdm05_mm_01-02_0
 """
 from __future__ import annotations
 
-import sys
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tucker_table2 import load  # noqa: E402
+import torchfill
+import torchfill.solvers as S
+from torchfill import gaps, metrics
+from torchfill.solvers import tucker as tk
 
-import torchfill.solvers as S  # noqa: E402
-from torchfill import gaps, metrics  # noqa: E402
-from torchfill.solvers import tucker as tk  # noqa: E402
+DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+
+
+def load(name: str) -> np.ndarray:
+    """A recording's points (T, J, 3), float64, the markers observed in every frame."""
+    P = torchfill.read(DATA / name).points
+    return P[:, np.isfinite(P).all(axis=(0, 2))]
 
 
 def best_of(fn, n=5):
@@ -63,22 +69,9 @@ def main():
     X1 = torch.from_numpy(ref.reshape(T, -1).copy())
     t_svd = best_of(lambda: torch.linalg.svd(X1, full_matrices=False))
     t_gram = best_of(lambda: torch.linalg.eigh(X1.T @ X1))
-    t_svt = best_of(lambda: tk.svt_gram(X1, 1.0))
+    t_svt = best_of(lambda: tk.svt(X1, 1.0, "gram"))
     print(f"thin SVD of the {T} x {3 * J} unfolding (torch.linalg.svd): {1e3 * t_svd:.1f} ms; "
           f"Gram + eigh: {1e3 * t_gram:.1f} ms; full SVT via Gram: {1e3 * t_svt:.1f} ms")
-
-    # TensorLy functional path vs direct torch contraction for one mode product
-    from torchfill import ops
-    Xt = torch.from_numpy(ref.copy())
-    A = torch.linalg.qr(torch.randn(T, 60, dtype=torch.float64)).Q
-    t_tl = best_of(lambda: ops.mode_dot(Xt, A.T, 0), 20)
-    t_th = best_of(lambda: tk.mode_dot(Xt, A.T, 0), 20)
-    small = torch.randn(60, 30, 3, dtype=torch.float64)
-    B = torch.randn(J, 30, dtype=torch.float64)
-    t_tl_s = best_of(lambda: ops.mode_dot(small, B, 1), 50)
-    t_th_s = best_of(lambda: tk.mode_dot(small, B, 1), 50)
-    print(f"mode-1 product X x_1 A^T (A {T}x60): TensorLy {1e3 * t_tl:.2f} ms, torch.tensordot "
-          f"{1e3 * t_th:.2f} ms; small core product: TensorLy {1e6 * t_tl_s:.0f} us, torch {1e6 * t_th_s:.0f} us")
 
     print("\n== scaling with the number of frames (tiled bd + mm), tucker_tnn / tucker ==")
     tiled = np.concatenate([bd, mm], axis=0)
