@@ -6,6 +6,7 @@ C3D storage (processor, word format), and whether ``torchfill info`` exits 0 on 
 """
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import sys
@@ -21,7 +22,9 @@ DEFAULT = data_dir(Path(__file__).resolve().parents[1])
 
 
 def run() -> None:
-    data = Path(sys.argv[1] if len(sys.argv) > 1 else DEFAULT)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", nargs="?", type=Path, default=DEFAULT, help="folder of recordings")
+    data = parser.parse_args().data
     print("| file | points in file | frames x markers read | units | rate (Hz) | missing % | "
           "never observed | excluded as non-markers | storage | `info` |")
     print("|---|---|---|---|---|---|---|---|---|---|")
