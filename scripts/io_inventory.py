@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import sys
 import warnings
 from collections import Counter
 from pathlib import Path
