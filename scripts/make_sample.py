@@ -1,6 +1,6 @@
 """Regenerate the embedded sample recording ``torchfill/data/sample_walk.c3d``.
 
-    .venv/bin/python scripts/make_sample.py            # write it (deterministic, same bytes)
+    .venv/bin/python scripts/make_sample.py            # write it (deterministic for a given writer)
     .venv/bin/python scripts/make_sample.py --compare  # also compare it with a real walk
 
 The file is ``synthetic_walk(seed=0)`` written by torchfill itself, then read back and checked.
@@ -10,7 +10,7 @@ the interpolation errors and the singular value energy of both, to show the samp
 """
 from __future__ import annotations
 
-import sys
+import argparse
 import warnings
 from pathlib import Path
 
@@ -77,6 +77,9 @@ def compare() -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--compare", action="store_true", help="also compare it with a real walk")
+    args = parser.parse_args()
     make()
-    if "--compare" in sys.argv[1:]:
+    if args.compare:
         compare()
