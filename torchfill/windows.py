@@ -1,7 +1,8 @@
 """Windowed fills of long recordings: the window plan and the blend of the windows' fills.
 
 A long recording is filled in overlapping windows of ``length`` frames, so time grows linearly with
-the number of frames and memory is bounded by one window. The plan is chosen from the gaps:
+the number of frames and memory is bounded by the windows solved at once. The plan is chosen from
+the gaps:
 
 - ``overlap = 2 * longest gap`` (at least ``MIN_OVERLAP``): every gap, with half its length of
   observed context on each side, then lies whole inside at least one window;
