@@ -99,6 +99,19 @@ def test_cli_writes_std_csv(tmp_path):
     assert np.isfinite(S[missing]).all() and np.isnan(S[~missing]).all()
 
 
+def test_progress_reports_every_candidate_fit_and_refit():
+    """auto's one step takes as long as all its candidates: the callback hears of each fit."""
+    seen = []
+    solver = get_solver("auto", candidates=["pchip", "spline", "svt"])
+    solver.fit(torch.from_numpy(_gappy()), callback=seen.append)
+    fits = [r["candidate"] for r in seen if "candidate" in r]
+    refits = [r["refit"] for r in seen if "refit" in r]
+    assert fits == [1.0, 2.0, 3.0] and all(r["candidates"] == 3.0 for r in seen if "candidate" in r)
+    assert refits == [float(k) for k in range(1, len(refits) + 1)] and refits
+    assert all(r["iter"] == 1 for r in seen) and "delta" in seen[-1]   # the step's record last
+    assert len(solver.history_) == 1 and solver.callback_ is None         # reports not kept
+
+
 def test_unknown_candidate_is_an_error():
     with pytest.raises(ValueError, match="candidates expected"):
         get_solver("auto", candidates=["pchip", "not_a_method"])

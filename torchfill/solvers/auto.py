@@ -40,6 +40,7 @@ constraints and model averaging", PLoS ONE 13(7): e0199744 (2018).
 """
 from __future__ import annotations
 
+import threading
 import warnings
 from collections.abc import Iterator
 
@@ -351,10 +352,19 @@ class Auto(Solver):
         except FAILURES as err:
             return err
 
-    def _fit_all(self, names: list[str], fit_missing: Tensor) -> Iterator:
-        """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``)."""
+    def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "candidate") -> Iterator:
+        """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``).
+        Each finished fit is reported (:meth:`Solver.report`): ``{stage}=k``, ``{stage}s=n``."""
         workers = None if self.M_.device.type == "cpu" else 1
-        return thread_map(lambda name: self._attempt(name, fit_missing), names, workers)
+        lock, done = threading.Lock(), [0]
+
+        def attempt(name: str):
+            out = self._attempt(name, fit_missing)
+            with lock:
+                done[0] += 1
+                self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
+            return out
+        return thread_map(attempt, names, workers)
 
     def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:
         """Each candidate fitted once with ``fit_missing`` hidden: names and fills (C, T, J, 3)."""
@@ -378,7 +388,7 @@ class Auto(Solver):
         hold-out fills; and the (T, J) samples that rigid donors fill."""
         fills = fills.clone()
         done = [c for c in range(len(names)) if bool((w[c][gaps] > 0).any())]
-        for c, out in zip(list(done), self._fit_all([names[c] for c in done], gaps)):
+        for c, out in zip(list(done), self._fit_all([names[c] for c in done], gaps, "refit")):
             if isinstance(out, Exception):
                 done.remove(c)
             else:

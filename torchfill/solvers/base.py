@@ -321,10 +321,14 @@ class Solver(nn.Module):
         ``data``: the solver's other data (``fit_data``, e.g. ``training=`` for the PCA methods).
         """
         self.initialize(X, mask, **data)
-        while not self.converged_ and self.n_iter_ < self.max_iter:
-            record = self.step_and_record()
-            if callback is not None:
-                callback(record)
+        self.callback_ = callback
+        try:
+            while not self.converged_ and self.n_iter_ < self.max_iter:
+                record = self.step_and_record()
+                if callback is not None:
+                    callback(record)
+        finally:
+            self.callback_ = None
         self.finalize()
         if not self.converged_:
             warnings.warn(f"{self.name}: stopped at max_iter={self.max_iter} before the stopping "
@@ -345,6 +349,13 @@ class Solver(nn.Module):
         if self.verbose:
             print(f"[{self.name}] " + "  ".join(f"{k}={v:.4g}" for k, v in info.items()))
         return info
+
+    def report(self, info: dict[str, float]) -> None:
+        """Progress inside one long :meth:`step` (``auto``'s candidate fits) to the fit's
+        ``callback``, as a record of the iteration under way (not kept in ``history_``)."""
+        callback = getattr(self, "callback_", None)
+        if callback is not None:
+            callback({"iter": self.n_iter_ + 1, **info})
 
     def should_stop(self, info: dict[str, float]) -> bool:
         """Default rule: relative change of the iterate below ``tol`` (observed data only)."""
