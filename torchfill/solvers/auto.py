@@ -414,12 +414,13 @@ class Auto(Solver):
             X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
             pairs = rigid_pairs(X, ~missing.cpu())
             donors = rigid_donors(X.numpy(), ~miss, pairs)
-        out = []
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            for F in fills:
-                G, report = constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
-                out.append(torch.from_numpy(G))
+        def one(F: Tensor):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
+        done = list(thread_map(one, fills))            # numpy lets go of the GIL for most of it
+        out = [torch.from_numpy(G) for G, _ in done]
+        report = done[-1][1]
         if report.rigid_done is not None:
             donor = torch.as_tensor(report.rigid_done, device=missing.device)
         out = torch.stack(out).to(device=fills.device, dtype=fills.dtype)
