@@ -104,9 +104,9 @@ def test_progress_reports_every_candidate_fit_and_refit():
     seen = []
     solver = get_solver("auto", candidates=["pchip", "spline", "svt"])
     solver.fit(torch.from_numpy(_gappy()), callback=seen.append)
-    fits = [r["candidate"] for r in seen if "candidate" in r]
+    fits = [r["fit"] for r in seen if "fit" in r]
     refits = [r["refit"] for r in seen if "refit" in r]
-    assert fits == [1.0, 2.0, 3.0] and all(r["candidates"] == 3.0 for r in seen if "candidate" in r)
+    assert fits == [1.0, 2.0, 3.0] and all(r["fits"] == 3.0 for r in seen if "fit" in r)
     assert refits == [float(k) for k in range(1, len(refits) + 1)] and refits
     assert all(r["iter"] == 1 for r in seen) and "delta" in seen[-1]   # the step's record last
     assert len(solver.history_) == 1 and solver.callback_ is None         # reports not kept

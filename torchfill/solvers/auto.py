@@ -47,7 +47,6 @@ from collections.abc import Iterator
 import torch
 
 from .. import ops
-from ..ops.threads import thread_map
 from .base import Param, Solver, available, get_solver, register
 from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
@@ -352,9 +351,11 @@ class Auto(Solver):
         except FAILURES as err:
             return err
 
-    def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "candidate") -> Iterator:
+    def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit") -> Iterator:
         """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``).
-        Each finished fit is reported (:meth:`Solver.report`): ``{stage}=k``, ``{stage}s=n``."""
+        Each finished fit is reported (:meth:`Solver.report`): ``{stage}=k``, ``{stage}s=n``
+        (``fit``/``fits`` on the hold-out, ``refit``/``refits``; the step's own record counts the
+        ``candidates`` that ran)."""
         workers = None if self.M_.device.type == "cpu" else 1
         lock, done = threading.Lock(), [0]
 
@@ -364,7 +365,7 @@ class Auto(Solver):
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
             return out
-        return thread_map(attempt, names, workers)
+        return ops.thread_map(attempt, names, workers)
 
     def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:
         """Each candidate fitted once with ``fit_missing`` hidden: names and fills (C, T, J, 3)."""
@@ -418,7 +419,7 @@ class Auto(Solver):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
-        done = list(thread_map(one, fills))            # numpy lets go of the GIL for most of it
+        done = list(ops.thread_map(one, fills))            # numpy lets go of the GIL for most of it
         out = [torch.from_numpy(G) for G, _ in done]
         report = done[-1][1]
         if report.rigid_done is not None:
