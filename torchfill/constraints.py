@@ -331,3 +331,38 @@ def _warn(report: ConstraintReport, names) -> None:
         warnings.warn(f"{report.blackout_frames} frame(s) with no marker observed: interpolated in "
                       "time from the fill around them, not reconstructed", RiskyFillWarning,
                       stacklevel=3)
+
+
+def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Several candidate fills of one recording through the post-step, as ``auto`` scores them.
+
+    ``fills`` (C, T, J, D): each candidate's fill; ``missing`` (T, J): the samples each may change
+    (no extrapolation limit). Returns the constrained fills (a candidate's own value where the
+    post-step left NaN) and the (T, J) samples that rigid donors fill: those depend on the
+    observed samples only, so the rigid pairs and donors are found once for all candidates, and
+    the candidates are constrained in threads (numpy lets go of the GIL for most of it).
+    ``fill()`` passes this function to ``auto`` as its ``post`` fit data.
+    """
+    from . import ops
+
+    donor = torch.zeros_like(missing)
+    if fills.shape[0] == 0:
+        return fills, donor
+    miss = missing.cpu().numpy()
+    pairs = donors = None
+    if fills.shape[-1] == 3:
+        X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
+        pairs = rigid_pairs(X, ~missing.cpu())
+        donors = rigid_donors(X.numpy(), ~miss, pairs)
+
+    def one(F: torch.Tensor):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
+    done = list(ops.thread_map(one, fills))
+    if done[-1][1].rigid_done is not None:
+        donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)
+    out = torch.stack([torch.from_numpy(G) for G, _ in done]).to(device=fills.device,
+                                                                   dtype=fills.dtype)
+    return torch.where(torch.isfinite(out), out, fills), donor

@@ -10,12 +10,11 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from .constraints import constrain
+from .constraints import constrain, constrain_candidates
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
-from .solvers.auto import holdout_std
 
 _LOCK = threading.Lock()
 
@@ -119,8 +118,6 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
-    if "constraints" in solver.declared_params():     # auto scores fills as they will come out
-        params["constraints"] = constraints
     if training is not None and "training" not in solver.fit_data:
         raise ValueError(f"{method}: takes no training data; methods that do: "
                          f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
@@ -149,6 +146,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
         extra = {}
+        if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
+            extra["post"] = constrain_candidates
         if training is not None:
             extra["training"] = [t.to(work or t.dtype) for t in
                                  _align_training(training, data, keep.tolist(), points.shape[1])]
@@ -255,9 +254,20 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
         est = getattr(solver, "std_", None)
         if est is None:
             est = holdout_std(method, params, X, missing, seed=solver.seed,
-                              constraints=constraints, **extra)
+                              post=constrain_candidates if constraints else None, **extra)
         stds[key] = est.to(filled.dtype)
     return filled
+
+
+def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tensor, seed: int = 0,
+                post=None, **data) -> torch.Tensor:
+    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
+    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
+    ``data``: the method's fit data (``training=``); ``post``: the post-step, as fill()'s."""
+    solver = get_solver("auto", candidates=(method,), candidate_params={method: dict(params)},
+                        seed=seed)
+    solver.fit(X, missing, post=post, **data)
+    return solver.std_
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
