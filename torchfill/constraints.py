@@ -57,6 +57,9 @@ SOFT_ITER = 10
 SOFT_WIDE = 3.0
 #: Soft distances are projected on this many (frame, pair) entries at a time.
 SOFT_BLOCK = 1 << 18
+#: Observed markers a frame needs for a spatial method's trial-end fill there not to count as an
+#: extrapolation in time (three markers fix a rigid body's pose).
+SPATIAL_MIN = 3
 #: Share of the observed per-axis range a fill may lie outside it.
 VOLUME_MARGIN = 0.1
 #: A fill's one-frame step may not exceed STEP_FACTOR x this percentile of the observed steps
@@ -86,7 +89,7 @@ class ConstraintReport:
 
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
               names=None, pairs: RigidPairs | None = None,
-              donors: tuple[np.ndarray, np.ndarray] | None = None
+              donors: tuple[np.ndarray, np.ndarray] | None = None, spatial: bool = False
               ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
@@ -107,6 +110,11 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     donors : (array (T, J, D), bool array (T, J)), optional
         Precomputed :func:`rigid_donors` of the same observed samples (they do not depend on the
         fill: ``auto`` constrains every candidate's fill with one).
+    spatial : bool
+        The fill comes from a method that places a marker from the markers seen in the same
+        frame (``auto``, the PMA family, Gløersen PCA): a trial-end sample in a frame with at least
+        ``SPATIAL_MIN`` observed markers is not an extrapolation in time, and the
+        ``extrapolate`` limit does not cut it (the fill's error estimate judges it instead).
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
@@ -128,7 +136,8 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     if long is not None:
         report.long_gaps = [(j, a, b) for j, a, b in gap_runs(free) if b - a > long
                             and observed[:, j].any()]
-    _limit_extrapolation(F, free, extrapolate, report)
+    support = observed.sum(axis=1) >= SPATIAL_MIN if spatial else np.zeros(len(F), dtype=bool)
+    _limit_extrapolation(F, free, extrapolate, report, support)
     _interpolate_blackouts(F, observed, free, report)
     free &= np.isfinite(F).all(axis=2)
     _blend_edges(F, free)
@@ -155,8 +164,9 @@ def _runs(mask: np.ndarray, T: int):
         yield j, a, b, a == 0, b == T
 
 
-def _limit_extrapolation(F, free, extrapolate, report) -> None:
-    """Keep at most ``extrapolate`` frames of a trial-end gap next to its observed edge."""
+def _limit_extrapolation(F, free, extrapolate, report, support) -> None:
+    """Keep at most ``extrapolate`` frames of a trial-end gap next to its observed edge, besides
+    the frames with spatial ``support`` (T,)."""
     T = F.shape[0]
     for j, a, b, at_start, at_end in _runs(free, T):
         if not (at_start or at_end) or (at_start and at_end):
@@ -164,7 +174,8 @@ def _limit_extrapolation(F, free, extrapolate, report) -> None:
         report.extrapolated_gaps.append((j, a, b))
         if extrapolate is None or b - a <= extrapolate:
             continue
-        drop = slice(a, b - extrapolate) if at_start else slice(a + extrapolate, b)
+        drop = np.arange(a, b - extrapolate) if at_start else np.arange(a + extrapolate, b)
+        drop = drop[~support[drop]]
         report.unfilled_extrapolation += int(np.isfinite(F[drop, j]).all(axis=1).sum())
         F[drop, j] = np.nan
 

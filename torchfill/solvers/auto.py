@@ -52,13 +52,17 @@ from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
 Tensor = torch.Tensor
 
-#: Candidates tried by default, in this order; names not registered (yet) are skipped. ``li``
-#: and ``lgrnn`` (Tits et al.'s local models, each < 1 s on 1200 x 41) were the best single
-#: method on 8 of the 19 cases of scripts/mask_suite.py (experiments/results/pma_reference.md);
-#: ``rigid`` is left out when the constraints run (their rigid donors are its fill; the rest is
-#: pchip's).
-DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
-                      "rigid", "li", "lgrnn", "pma", "pca_gloersen")
+#: Candidates tried by default, in this order; names not registered (yet) are skipped: the
+#: temporal interpolants for short gaps, the spatial models of Tits et al. 2018 (``li``,
+#: ``lgrnn``, ``glr`` and their average ``pma``) and Gløersen PCA, which place a marker from the
+#: markers seen in the same frame (real gaps sit mostly at trial ends, where nothing else works),
+#: and ``tucker_tnn`` for long interior gaps and dense occlusion. ``rigid`` is left out when a
+#: post-step runs (its rigid donors are that fill). ``svt``, ``cp`` and ``pca_train`` were never
+#: the best single method on the real-gap-pattern suite and cost a third of the fits' time
+#: (``cp`` won one still 80-frame window of the mask suite by 0.02 mm); pass ``candidates=`` to
+#: try them.
+DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "pca_gloersen",
+                      "tucker_tnn")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -218,6 +222,7 @@ class Auto(Solver):
 
     name = "auto"
     iterative = False
+    spatial = True
     fit_data = ("training", "post")
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),

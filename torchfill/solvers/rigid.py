@@ -275,6 +275,7 @@ class Rigid(Solver):
 
     name = "rigid"
     iterative = False
+    spatial = True
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "tol": Param(0.005, float, low=0.0, low_open=True,
