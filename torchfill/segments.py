@@ -50,6 +50,9 @@ PAIR_BLOCK = 1 << 20
 #: 0.03 / 0.05 with complete or average linkage, 0.05 complete agreed best with the named tables
 #: on HDM05, CMU, Plug-in Gait, OpenSim and Qualisys cluster recordings (scripts/eval_segments.py).
 RELATIVE_SPREAD = 0.05
+#: Segments found from the data for a fill also give each marker its own: itself and this many
+#: most rigid neighbours (clusters alone left many samples without three mates).
+DATA_MATES = 5
 
 # --------------------------------------------------------------------------------------------
 # Name tables. Marker names are normalised (lower case, no separators); "#" stands for the side
@@ -163,18 +166,34 @@ class Segments(OrderedDict):
     @classmethod
     def from_data(cls, X, labels: Iterable[str] | None = None, observed=None, *,
                   relative_spread: float = RELATIVE_SPREAD, min_size: int = 3,
-                  neighbours: int = NEIGHBOURS) -> "Segments":
+                  neighbours: int = NEIGHBOURS, mates: int = 0) -> "Segments":
         """Near-rigid clusters of the observed samples of ``X`` (T, J, 3) (see the module
         docstring); clusters of fewer than ``min_size`` markers are left out. Named
-        ``cluster1, cluster2, ...`` in the order of their first marker."""
+        ``cluster1, cluster2, ...`` in the order of their first marker. With ``mates > 0``, also
+        one segment per marker (``near:LABEL``): the marker and its ``mates`` most rigid
+        neighbours within ``3 x relative_spread`` (the reconstruction's donors where a cluster is
+        too small or missing in a frame)."""
         X = np.asarray(X, dtype=np.float64)
         J = X.shape[1]
         labels = [str(x) for x in labels] if labels is not None else [str(j) for j in range(J)]
         stats = pair_stats(X, observed, neighbours=neighbours)
         groups = _cluster(J, stats, relative_spread)
         groups = sorted((sorted(g) for g in groups if len(g) >= min_size), key=lambda g: g[0])
-        return cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
-                   source="data")
+        out = cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
+                  source="data")
+        if mates > 0:
+            rel = stats.relative
+            ok = np.isfinite(rel) & (rel <= 3 * relative_spread)
+            a = np.concatenate([stats.j[ok], stats.k[ok]])
+            b = np.concatenate([stats.k[ok], stats.j[ok]])
+            r = np.concatenate([rel[ok], rel[ok]])
+            order = np.lexsort((r, a))
+            a, b = a[order], b[order]
+            for j in range(J):
+                near = b[a == j][:mates]
+                if near.size >= min_size:
+                    out[f"near:{labels[j]}"] = [labels[j]] + [labels[k] for k in near]
+        return out
 
     # -- use ------------------------------------------------------------------------------------
     def indices(self, labels: Iterable[str]) -> "OrderedDict[str, list[int]]":
@@ -314,7 +333,7 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
             return named
     if X is None:
         return Segments(source="data")
-    return Segments.from_data(X, labels, observed)
+    return Segments.from_data(X, labels, observed, mates=DATA_MATES)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -347,6 +347,46 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     return est, std, seg_of
 
 
+def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None, labels=None,
+               *, min_partners: int = 3) -> tuple[Tensor, Tensor]:
+    """The rigid donors of :mod:`torchfill.constraints` and the QC: :func:`segment_fill` where its
+    estimated error is within the rigidity tolerance (3-D RMS ``<= tol x scale``, about 3 mm on an
+    adult body: truly rigid mates only), and a marker stored twice filled from its twin.
+
+    A gap takes the donors at all of its samples that have them or at none (a donor edge inside
+    a gap would pull the other method's fill there). Returns the fill (NaN where no donor;
+    observed samples unchanged) and the bool ``(T, J)``
+    mask of the samples filled here, as tensors.
+    """
+    Xn = np.asarray(_numpy(X), dtype=np.float64)
+    seen = np.isfinite(Xn).all(axis=2) if observed is None else _numpy(observed).astype(bool)
+    pairs = pairs if pairs is not None else rigid_pairs(Xn, seen)
+    est, std, _ = segment_fill(Xn, seen, segments if segments is not None else "data", labels,
+                               min_mates=min_partners)
+    done = np.isfinite(est).all(axis=2)
+    good = done & (np.sqrt(3.0) * std <= pairs.tol * pairs.scale)
+    for j in np.flatnonzero(done.any(axis=0)):          # a gap's donors all or none: a fill
+        run = np.cumsum(np.diff(np.r_[0, ~seen[:, j]].astype(int)) == 1) * ~seen[:, j]
+        bad = np.unique(run[done[:, j] & ~good[:, j]])  # edge inside a gap is worse than none
+        done[np.isin(run, bad[bad > 0]), j] = False
+    out = np.where(seen[..., None], Xn, np.nan)
+    out[done] = est[done]
+    _fill_duplicates(out, done, Xn, seen, pairs)
+    return torch.from_numpy(out), torch.from_numpy(done)
+
+
+def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
+    """A marker stored twice: translate the twin by their median offset while both were seen."""
+    for a, b in zip(pairs.j[pairs.duplicate], pairs.k[pairs.duplicate]):
+        for j, k in ((a, b), (b, a)):
+            both = seen[:, j] & seen[:, k]
+            todo = np.flatnonzero(~seen[:, j] & seen[:, k] & ~done[:, j])
+            if todo.size == 0 or not both.any():
+                continue
+            out[todo, j] = X[todo, k] + np.median(X[both, j] - X[both, k], axis=0)
+            done[todo, j] = True
+
+
 @register
 class Rigid(Solver):
     """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates; PCHIP elsewhere, with
