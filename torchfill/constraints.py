@@ -89,7 +89,8 @@ class ConstraintReport:
 
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
               names=None, pairs: RigidPairs | None = None,
-              donors: tuple[np.ndarray, np.ndarray] | None = None, spatial: bool = False
+              donors: tuple[np.ndarray, np.ndarray] | None = None, segments=None,
+              spatial: bool = False
               ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
@@ -110,6 +111,8 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     donors : (array (T, J, D), bool array (T, J)), optional
         Precomputed :func:`rigid_donors` of the same observed samples (they do not depend on the
         fill: ``auto`` constrains every candidate's fill with one).
+    segments : optional
+        The segments the rigid donors come from (see :func:`rigid_donors`).
     spatial : bool
         The fill comes from a method that places a marker from the markers seen in the same
         frame (``auto``, the PMA family, Gløersen PCA): a trial-end sample in a frame with at least
@@ -125,9 +128,9 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     done = np.zeros_like(missing)
     if F.shape[2] == 3:             # 2-D keypoints are projections: no rigid segments to keep
         if pairs is None:
-            pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], F, np.nan)),
-                                torch.from_numpy(observed))
-        R, done = donors if donors is not None else rigid_donors(F, observed, pairs)
+            pairs = rigid_pairs(np.where(observed[..., None], F, np.nan), observed)
+        R, done = donors if donors is not None else rigid_donors(F, observed, pairs, segments,
+                                                                 names)
         done = done & missing
         F[done] = R[done]
         del R                           # long recordings: a full-length copy fewer from here
@@ -151,11 +154,16 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     return F, report
 
 
-def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs) -> tuple[np.ndarray, np.ndarray]:
+def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs | None = None, segments=None,
+                 names=None) -> tuple[np.ndarray, np.ndarray]:
     """Step 1's rigid-body fill from the ``observed`` samples of ``filled`` (T, J, 3): the fill
-    (NaN where no donors) and the (T, J) samples it fills."""
-    X = torch.from_numpy(np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan))
-    R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
+    (NaN where no donors) and the (T, J) samples it fills. The donors are segment-mates
+    (:func:`torchfill.solvers.rigid.rigid_fill`): ``segments`` as ``fill()`` resolved them (name
+    -> marker indices), else the name tables when ``names`` fit them, else found from the data."""
+    X = np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan)
+    if segments is None:
+        segments = "auto" if names is not None else "data"
+    R, done = rigid_fill(X, observed, pairs, segments, names)
     return R.numpy(), done.numpy()
 
 
@@ -229,16 +237,17 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     """Move free filled samples towards their rigid partners' distances (Jacobi projection).
     Frames are independent: only those with a free pair member are projected, a block at a time
     (memory bounded for any length)."""
-    rigid = (pairs.rigid & ~pairs.duplicate).cpu().numpy()
-    band = SOFT_BAND * pairs.spread.cpu().numpy()
+    rigid = pairs.rigid & ~pairs.duplicate
+    band = SOFT_BAND * pairs.spread
     if pairs.wide is not None:      # pairs whose observed distances stay near that band
         floor = pairs.tol * pairs.scale     # a still pair's tiny MAD is not its motion's band
-        rigid &= pairs.wide.cpu().numpy() <= SOFT_WIDE * np.maximum(band, floor)
-    j, k = np.nonzero(np.triu(rigid, 1))
+        with np.errstate(invalid="ignore"):
+            rigid &= pairs.wide <= SOFT_WIDE * np.maximum(band, floor)
+    j, k = pairs.j[rigid], pairs.k[rigid]
     if j.size == 0:
         return
-    d0 = pairs.distance.cpu().numpy()[j, k]
-    band = band[j, k]
+    d0 = pairs.distance[rigid]
+    band = band[rigid]
     rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
     size = max(1, SOFT_BLOCK // j.size)
     for a in range(0, rows.size, size):

@@ -45,7 +45,7 @@ def default_method() -> str:
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
          window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
          constraints: bool = True, extrapolate: float | None = 0.25, return_std: bool = False,
-         dtype=None, workers: int | None = None, **params):
+         dtype=None, workers: int | None = None, segments=None, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -92,6 +92,12 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         :func:`torchfill.ops.thread_map`). The first window runs alone and the fills blend in
         window order, so a fill does not depend on which window finishes first; it does depend on
         the threads per window, which change how float32 sums round (accuracy the same).
+    segments : optional
+        Which markers move together (see :mod:`torchfill.segments`): a dict segment name ->
+        marker labels, a path to a segments YAML file (``torchfill info --segments`` prints one),
+        ``"names"`` (the built-in marker-set tables), ``"data"`` (near-rigid clusters found in the
+        recording) or None (the tables when the labels fit them, else found from the data). Used
+        by the ``rigid`` method and the constraints' rigid donors.
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -142,8 +148,15 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0,
             "dtype": str(work or points.dtype).removeprefix("torch.")}
     std = torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device)
+    seg_idx = None
+    if bool(todo.any()) and points.shape[2] == 3 and (
+            constraints or segments is not None or "segments" in solver.declared_params()):
+        seg_idx = _segment_indices(segments, data, points, unfit)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
+        if seg_idx is not None and "segments" in solver.declared_params():
+            at = {int(j): i for i, j in enumerate(keep.tolist())}
+            params["segments"] = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
         extra = {}
         if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
             extra["post"] = constrain_candidates
@@ -175,7 +188,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         if not whole:
             out[:, keep] = part
     if constraints and bool(todo.any()):
-        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, solver.spatial)
+        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, seg_idx,
+                                              solver.spatial)
         if extrapolate is not None and isinstance(data, MarkerSequence):
             info["rejected"] = _reject(out, std, missing, data.units)
     if max_gap is not None:
@@ -226,8 +240,17 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
     return huge
 
 
+def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) -> dict:
+    """The segments in use as ``name -> marker indices`` (see :mod:`torchfill.segments`)."""
+    from .solvers.rigid import index_segments
+
+    labels = list(data.labels) if isinstance(data, MarkerSequence) else None
+    X = torch.where(unfit[..., None], torch.nan, points).cpu().numpy()
+    return index_segments(segments, labels, X, ~unfit.cpu().numpy())
+
+
 def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate,
-               spatial: bool = False):
+               segments=None, spatial: bool = False):
     """The constraints post-step on the fill; coordinates the input had stay bit-for-bit.
     ``spatial``: the method places markers from the same frame (see ``Solver.spatial``)."""
     rate = data.rate if isinstance(data, MarkerSequence) else None
@@ -235,7 +258,7 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
     names = data.labels if isinstance(data, MarkerSequence) else None
     F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
                           long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names,
-                          spatial=spatial)
+                          segments=segments, spatial=spatial)
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
 
