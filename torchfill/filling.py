@@ -2,6 +2,7 @@
 same kind of object it was given, observed samples bit-for-bit unchanged."""
 from __future__ import annotations
 
+import functools
 import threading
 import time
 import warnings
@@ -154,12 +155,19 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         seg_idx = _segment_indices(segments, data, points, unfit)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
-        if seg_idx is not None and "segments" in solver.declared_params():
+        kept_segments = None
+        if seg_idx is not None:
             at = {int(j): i for i, j in enumerate(keep.tolist())}
-            params["segments"] = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
+            kept_segments = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
+        if kept_segments is not None and "segments" in solver.declared_params():
+            params["segments"] = kept_segments
+        if kept_segments is not None and "candidate_params" in solver.declared_params():
+            given = dict(params.get("candidate_params") or {})      # auto's rigid candidate
+            given["rigid"] = {"segments": kept_segments, **given.get("rigid", {})}
+            params["candidate_params"] = given
         extra = {}
         if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
-            extra["post"] = constrain_candidates
+            extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
         if training is not None:
             extra["training"] = [t.to(work or t.dtype) for t in
                                  _align_training(training, data, keep.tolist(), points.shape[1])]
