@@ -271,8 +271,8 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
 
 
 def test_windowed_fill_in_threads_leaves_other_threads_thread_count_alone():
-    """A watcher thread of the caller's program samples torch's thread count all through a fill
-    whose windows run in two worker threads: it never changes (the library leaves global torch
+    """A watcher thread of the caller's program samples torch's thread count (its own, and that of
+    threads it starts) all through a fill whose windows run in two worker threads: it never changes (the library leaves global torch
     state alone: threads, default dtype, seeds)."""
     import threading
 
@@ -291,9 +291,14 @@ def test_windowed_fill_in_threads_leaves_other_threads_thread_count_alone():
     with _threads(2):
         stop, counts = threading.Event(), []
 
-        def watch():
+        def sample():
+            counts.append(torch.get_num_threads())
+
+        def watch():                 # the count a thread of the program starts torch work with
             while not stop.is_set():
-                counts.append(torch.get_num_threads())
+                fresh = threading.Thread(target=sample)
+                fresh.start(), fresh.join()
+                sample()
                 stop.wait(0.001)
 
         watcher = threading.Thread(target=watch)
