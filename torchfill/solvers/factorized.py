@@ -33,6 +33,28 @@ class _Factorized(nn.Module):
         else:
             self.register_buffer(name, value)
 
+    @classmethod
+    def empty(cls) -> "_Factorized":
+        """A structure with no tensors yet, to ``load_state_dict`` a fitted one into."""
+        obj = cls.__new__(cls)
+        _Factorized.__init__(obj, learn=False)
+        obj.n_modes = 0
+        return obj
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys,
+                              unexpected_keys, error_msgs) -> None:
+        """An :meth:`empty` structure takes its tensors' shapes from the saved state first (as
+        buffers: a loaded fit is for ``forward()``; refit to learn again)."""
+        for key, value in state_dict.items():
+            name = key[len(prefix):]
+            if (key.startswith(prefix) and "." not in name
+                    and name not in self._buffers and name not in self._parameters):
+                self._put(name, torch.empty_like(value))
+        self.n_modes = max(self.n_modes, sum(1 for k in self._parameters if k.startswith("factor_"))
+                           + sum(1 for k in self._buffers if k.startswith("factor_")))
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys,
+                                      unexpected_keys, error_msgs)
+
     @property
     def factors(self) -> list[torch.Tensor]:
         return [getattr(self, f"factor_{n}") for n in range(self.n_modes)]

@@ -309,10 +309,10 @@ class _PCA(Solver):
         "training": Param(None, (list, tuple), allow_none=True,
                           doc="deprecated (one release): pass the training data to "
                               "fit(X, mask, training=...) or torchfill.fill(..., training=...)"),
-        "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
-                          doc="rank r = fewest eigenvectors explaining this share of the training "
-                              "variance (0.9999: chosen among 0.99-0.99999 on the development "
-                              "recordings cmu_85_02 and HDM_bd_01-02, experiments/pca_dev.yaml)"),
+        "energy": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
+                        doc="rank r = fewest eigenvectors explaining this share of the training "
+                            "variance, i.e. of the energy (0.9999: chosen among 0.99-0.99999 on the development "
+                            "recordings cmu_85_02 and HDM_bd_01-02, experiments/pca_dev.yaml)"),
         "rank": Param(None, int, low=1, allow_none=True, doc="fixed rank r instead of the rule"),
         "self_share": Param(0.5, float, low=0.0, high=1.0,
                             doc="with a training set: weight of the recording's own complete frames "
@@ -322,6 +322,8 @@ class _PCA(Solver):
                                        "prior of the coefficients (False: the paper's plain "
                                        "least squares)"),
     }
+    #: one name per idea: the share of the spectrum kept is ``energy`` in every solver
+    renamed = {"variance": "energy"}
 
     def _self_data(self) -> Tensor:
         """The recording itself, normalized, NaN where missing (for ``training=None``)."""
@@ -386,10 +388,10 @@ class _PCA(Solver):
         stride = max(1, length // 20)
         # Column centring removes mu and the basis is scale-free, so raw training units serve.
         def make():
-            return temporal_basis(sources, length, stride, self.variance, self.rank)
+            return temporal_basis(sources, length, stride, self.energy, self.rank)
 
         V = make() if own else _cached(("temporal", self.training_key_, length, stride,
-                                        self.variance, self.rank), make)
+                                        self.energy, self.rank), make)
         self.bases_[length] = V
         return V
 
@@ -500,7 +502,7 @@ class PCATrain(_PCA):
             out = Y
             if bool((missing.any(dim=1) & ~full).any()):
                 n, s, S = self._spatial_stats()
-                out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
+                out = spatial_fill(Y, missing, n, s, S, variance=self.energy, rank=self.rank,
                                    centre=self.centre)
         else:
             runs = [(a, b, j) for j, a, b in ops.runs(missing)]
@@ -549,9 +551,9 @@ class PCABlackout(_PCA):
 
     name = "pca_blackout"
     params = {
-        "variance": Param(0.99999, float, low=0.0, high=1.0, low_open=True,
-                          doc="rank rule (as pca_train); 0.99999: best of 0.99-0.99999 with the "
-                              "prior on the development recordings (experiments/pca_dev.yaml)"),
+        "energy": Param(0.99999, float, low=0.0, high=1.0, low_open=True,
+                        doc="rank rule (as pca_train); 0.99999: best of 0.99-0.99999 with the "
+                            "prior on the development recordings (experiments/pca_dev.yaml)"),
         "centre": Param(True, bool, doc="body-centred frames for the partial gaps (see pca_train)"),
         "window": Param(200, int, low=4, doc="window around a blackout (the paper's 200-frame segments)"),
         "edge_scale": Param(1.0, float, low=0.0, low_open=True, allow_none=True,
@@ -566,7 +568,7 @@ class PCABlackout(_PCA):
         full = missing.all(dim=1)
         if bool((missing.any(dim=1) & ~full).any()):
             n, s, S = self._spatial_stats()
-            Y = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
+            Y = spatial_fill(Y, missing, n, s, S, variance=self.energy, rank=self.rank,
                              centre=self.centre)
         runs = [(a, b, None) for _, a, b in ops.runs(full[:, None])]
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
