@@ -115,11 +115,20 @@ class CPTensor(_Factorized):
         import tensorly as tl
         from tensorly.decomposition import parafac
 
+        if not bool((X != 0).any()):         # nothing to fit (constant data): zero weights
+            gen = torch.Generator(device="cpu").manual_seed(seed)
+            A = [torch.randn(I, rank, generator=gen, dtype=X.dtype).to(X.device) for I in X.shape]
+            A = [a / torch.linalg.vector_norm(a, dim=0) for a in A]
+            return cls(X.new_zeros(rank), A, learn=learn)
         broken = any(X.numel() // I < rank <= I for I in X.shape)
         with tl.backend_context("pytorch"), warnings.catch_warnings():
             warnings.simplefilter("ignore")   # SVD init pads R > I_n with random columns
-            w, A = parafac(X, rank=rank, init="random" if broken else "svd", n_iter_max=n_iter,
-                           tol=1e-8, normalize_factors=True, random_state=seed)
+            try:
+                w, A = parafac(X, rank=rank, init="random" if broken else "svd", n_iter_max=n_iter,
+                               tol=1e-8, normalize_factors=True, random_state=seed)
+            except torch.linalg.LinAlgError:  # a rank-deficient X (ALS normal equations singular)
+                w, A = parafac(X, rank=rank, init="random", n_iter_max=n_iter, tol=1e-8,
+                               normalize_factors=True, random_state=seed)
         return cls(w.detach().clone(), [a.detach().clone() for a in A], learn=learn)
 
     @property

@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import warnings
 from collections import OrderedDict
 from typing import Any
 
@@ -190,7 +191,11 @@ def template_operator(n: int, s: Tensor, S: Tensor, observed: Tensor, *, varianc
     C0 = d[:, None] * C * d[None, :]                               # covariance of A(0) = A L D
     lam0, U0 = _eigh_desc(C0)
     r0 = min(U.shape[1], int((lam0 > rtol * lam0[0].clamp(min=1e-300)).sum()))
-    lam0, U0 = lam0[:max(r0, 1)], U0[:, :max(r0, 1)]              # gapped eigenspace U(0)
+    if r0 == 0 or not bool(lam0[0] > 0):
+        # the observed coordinates vary not at all once centred (one observed marker, body-
+        # centred): they say nothing beyond the centroid, so the estimate is the mean template
+        return L, m, torch.zeros_like(C)
+    lam0, U0 = lam0[:r0], U0[:, :r0]                               # gapped eigenspace U(0)
     # Eq. 2-3, normal equations (derived; the printed Eq. 3 is garbled in our copy):
     #   (sum P_i'P_i) T = sum P_i' A_i U,  P_i = A_i(0) U(0)  =>  T = Lambda0^-1 U(0)' D C U
     T = (U0.T @ (d[:, None] * C) @ U) / lam0[:, None]
@@ -443,6 +448,17 @@ class _PCA(Solver):
     def _estimate(self) -> Tensor:
         return self.X_
 
+    def _finite_or_start(self, out: Tensor) -> Tensor:
+        """``out`` (T x DJ) with any sample the model could not estimate (too few markers or
+        frames for its statistics) taken from the interpolation start, with a warning."""
+        bad = ~torch.isfinite(out) & ~self.Omega_.reshape(out.shape)
+        if not bool(bad.any()):
+            return out
+        warnings.warn(f"{self.name}: {int(bad.sum())} missing coordinate(s) could not be "
+                      f"estimated by the PCA model ({self.M_.shape[1]} markers); filled by "
+                      f"linear interpolation instead", UserWarning, stacklevel=4)
+        return torch.where(bad, self.interp_start().reshape(out.shape), out)
+
 
 @register
 class PCATrain(_PCA):
@@ -511,6 +527,7 @@ class PCATrain(_PCA):
                 Y, runs, lambda j: slice(D * j, D * j + D), lambda j: ~missing[:, j],
                 self.window, None)
         out = torch.where(full[:, None], self.X_.reshape(T, -1), out)  # blackouts: linear
+        out = self._finite_or_start(out)
         self.X_ = torch.where(self.Omega_.reshape(T, -1), Y, out).reshape(self.M_.shape)
         return {"delta": 0.0}
 
@@ -574,5 +591,6 @@ class PCABlackout(_PCA):
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
                                        self.window, self.edge_scale)
         observed = self.Omega_.reshape(T, -1)
+        out = self._finite_or_start(out)
         self.X_ = torch.where(observed, self.M_.reshape(T, -1), out).reshape(self.M_.shape)
         return {"delta": 0.0}
