@@ -95,6 +95,12 @@ class TuckerTensor(_Factorized):
     def forward(self) -> torch.Tensor:
         return ops.tucker_to_tensor(self.core, self.factors)
 
+    def to_tensorly(self):
+        """TensorLy's ``TuckerTensor`` of the same core and factors (detached, sharing memory):
+        ``tl.tucker_to_tensor`` of it is :meth:`forward`'s tensor."""
+        from tensorly.tucker_tensor import TuckerTensor as TLTucker
+        return TLTucker((self.core.detach(), [A.detach() for A in self.factors]))
+
 
 class CPTensor(_Factorized):
     """``sum_r w_r a_r(1) o a_r(2) o a_r(3)``: weights (R,), factors ``A(n)`` (I_n x R)."""
@@ -137,3 +143,9 @@ class CPTensor(_Factorized):
 
     def forward(self) -> torch.Tensor:
         return ops.cp_to_tensor(self.weights, self.factors)
+
+    def to_tensorly(self):
+        """TensorLy's ``CPTensor`` of the same weights and factors (detached, sharing memory):
+        ``tl.cp_to_tensor`` of it is :meth:`forward`'s tensor."""
+        from tensorly.cp_tensor import CPTensor as TLCP
+        return TLCP((self.weights.detach(), [A.detach() for A in self.factors]))
