@@ -30,6 +30,23 @@ NAMES = ("unfold", "fold", "mode_dot", "multi_mode_dot", "tucker_to_tensor", "cp
          "khatri_rao")
 
 
+def torch_ops() -> dict:
+    """Our own torch contractions for every op (the library before TensorLy took some over)."""
+    def multi_mode_dot(X, factors, skip=None, transpose=False):
+        for n, A in enumerate(factors):
+            if n != skip:
+                X = ours.mode_dot(X, A.T if transpose else A, n)
+        return X
+
+    def cp_to_tensor(weights, factors):
+        i = "abcdefghijklm"[:len(factors)]
+        return torch.einsum(",".join(["z"] + [c + "z" for c in i]) + "->" + i, weights, *factors)
+
+    return {"unfold": ours.unfold, "fold": ours.fold, "mode_dot": ours.mode_dot,
+            "multi_mode_dot": multi_mode_dot, "tucker_to_tensor": ours.tucker_to_tensor,
+            "cp_to_tensor": cp_to_tensor, "khatri_rao": ours.khatri_rao}
+
+
 def tensorly_ops() -> dict:
     """The same ops through TensorLy (``tl.backend_context("pytorch")`` around each call)."""
     import tensorly as tl
@@ -71,10 +88,10 @@ def per_call(repeat: int) -> None:
         "cp_to_tensor": lambda f: f(w, C),
         "khatri_rao": lambda f: f(C[1], C[2]),
     }
-    tl_ops = tensorly_ops()
+    tl_ops, torch_own = tensorly_ops(), torch_ops()
     print(f"per call (us), median of {repeat}; X {T}x{J}x{K}, Tucker rank {tuple(G.shape)}, CP rank 40")
     for name in NAMES:
-        a, b = getattr(ours, name), tl_ops[name]
+        a, b = torch_own[name], tl_ops[name]
         torch.testing.assert_close(cases[name](a), cases[name](b))       # same result
         n = 200
         times = {"ours": [], "tensorly": []}
@@ -85,7 +102,7 @@ def per_call(repeat: int) -> None:
                     cases[name](f)
                 times[label].append((time.perf_counter() - t0) / n * 1e6)
         mo, mt = statistics.median(times["ours"]), statistics.median(times["tensorly"])
-        print(f"  {name:18s} ours {mo:9.1f}  tensorly {mt:9.1f}  ratio {mt / mo:5.2f}")
+        print(f"  {name:18s} torch {mo:9.1f}  tensorly {mt:9.1f}  ratio {mt / mo:5.2f}")
 
 
 def per_iteration(repeat: int) -> None:
@@ -93,18 +110,22 @@ def per_iteration(repeat: int) -> None:
     truth = torchfill.read(os.path.join(data, "hdm05_mm_01-02_03_120.c3d")).points[:1000]
     mask = gaps.multi_gap(*truth.shape[:2], n_markers=20, gap_length=100, max_gaps=5, seed=0)
     X = torch.from_numpy(np.where(mask[..., None], np.nan, truth))
-    tl_ops = tensorly_ops()
-    saved = {name: getattr(ops, name) for name in NAMES}
+    variants = {"torch": torch_ops(), "tensorly": tensorly_ops(),
+                "library": {name: getattr(ops, name) for name in NAMES}}
+    saved = variants["library"]
     runs = {"tucker": dict(max_iter=60, tol=0.0, holdout=None, eps=1e-2),
             "tucker_tnn": dict(max_iter=60, tol=0.0, holdout=None, eps=1e-2),
-            "cp": dict(max_iter=60, tol=0.0, holdout=None, rank=30, max_rank=30)}
-    print(f"per iteration (ms), median of {repeat} fits of 60 iterations, alternating")
+            "cp": dict(max_iter=60, tol=0.0, holdout=None, rank=30, max_rank=30),
+            "grad_tucker": dict(max_iter=60, tol=0.0),
+            "grad_cp": dict(max_iter=60, tol=0.0)}
+    print(f"per iteration (ms), median of {repeat} fits of 60 iterations, alternating; torch = "
+          f"all our own ops (before), tensorly = all TensorLy, library = the mix in torchfill.ops")
     for method, params in runs.items():
-        times = {"ours": [], "tensorly": []}
+        times = {label: [] for label in variants}
         for _ in range(repeat):
-            for label in ("ours", "tensorly"):
+            for label in variants:
                 for name in NAMES:
-                    setattr(ops, name, saved[name] if label == "ours" else tl_ops[name])
+                    setattr(ops, name, variants[label][name])
                 try:
                     solver = get_solver(method, **params)
                     with warnings.catch_warnings():
@@ -117,8 +138,9 @@ def per_iteration(repeat: int) -> None:
                 finally:
                     for name in NAMES:
                         setattr(ops, name, saved[name])
-        mo, mt = statistics.median(times["ours"]), statistics.median(times["tensorly"])
-        print(f"  {method:12s} ours {mo:8.2f}  tensorly {mt:8.2f}  ratio {mt / mo:5.2f}")
+        med = {label: statistics.median(v) for label, v in times.items()}
+        print(f"  {method:12s} " + "  ".join(f"{k} {v:8.2f}" for k, v in med.items())
+              + f"  library/torch {med['library'] / med['torch']:5.2f}")
 
 
 def main() -> None:

@@ -480,3 +480,23 @@ def test_state_dict_round_trip_in_a_fresh_process(tmp_path):
             "sys.exit(0 if torch.equal(fresh.transform(saved['X']), saved['out']) else 3)\n")
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_cli_param_goes_to_the_method_not_to_fill(tmp_path, monkeypatch):
+    """``-p window=15`` with pma sets pma's window; ``--window`` stays fill()'s."""
+    from torchfill.cli import main
+
+    src = tmp_path / "gappy.npy"
+    np.save(src, GAPPY)
+    calls = []
+    real = torchfill.fill
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(torchfill, "fill", spy)
+    code = main(["fill", str(src), "-o", str(tmp_path / "out.npy"), "-m", "pma", "-p", "window=15",
+                 "--window", "0", "--no-constraints", "-q"])
+    assert code == 0
+    assert calls[0]["params"] == {"window": 15} and calls[0]["window"] is None
