@@ -128,7 +128,14 @@ def test_unchanged_write_is_byte_identical(path, tmp_path):
     if path.suffix == ".c3d" and _gaps_marked_valid(path, seq).any():
         _check_write_back(path, out, seq, np.zeros(seq.mask.shape, bool))
         return
-    assert out.read_bytes() == path.read_bytes()
+    a, b = path.read_bytes().split(b"\n"), out.read_bytes().split(b"\n")
+    if path.suffix == ".trc" and a[4] != b[4]:
+        # rows ending in a tab (OpenSim's) and an X1 Y1 Z1 line without one: that line gains it,
+        # so that pandas (Pose2Sim) reads the columns under their names
+        assert b[4] == a[4].rstrip(b"\r") + b"\t" + a[4][len(a[4].rstrip(b"\r")):]
+        assert a[6].endswith(b"\t")
+        a[4] = b[4]
+    assert b"\n".join(b) == b"\n".join(a)
 
 
 def _gaps_marked_valid(path, seq):

@@ -324,21 +324,28 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
     n = 2 + 3 * J
     lines = list(parsed.lines)
     lines[0] = _first_line(lines[0], filled)
+    rows = []
     for t, i in enumerate(parsed.data_lines):
-        body = lines[i].rstrip("\r\n")
-        ending = lines[i][len(body):]
-        cells = body.split("\t")
-        if not filled[t].any():
-            full = _full_row(cells, n)
-            if full is not cells:
-                lines[i] = "\t".join(full) + ending
-            continue
-        places = decimals if decimals is not None else _decimals(cells[2:])
-        cells += [""] * (n - len(cells))
-        for j in np.flatnonzero(filled[t]):
-            cells[2 + 3 * j:5 + 3 * j] = _sample_cells(cells[2 + 3 * j:5 + 3 * j],
-                                                       seq.points[t, j], rewrite[t, j], places)
-        lines[i] = "\t".join(_full_row(cells, n)) + ending
+        cells = lines[i].rstrip("\r\n").split("\t")
+        if filled[t].any():
+            places = decimals if decimals is not None else _decimals(cells[2:])
+            cells += [""] * (n - len(cells))
+            for j in np.flatnonzero(filled[t]):
+                cells[2 + 3 * j:5 + 3 * j] = _sample_cells(cells[2 + 3 * j:5 + 3 * j],
+                                                           seq.points[t, j], rewrite[t, j], places)
+        rows.append(cells)
+    # one row that needs a trailing tab (OpenSim) gives every row and the X1 Y1 Z1 line one, so
+    # that pandas (Pose2Sim) sees the same number of cells everywhere
+    trailing = any(len(_full_row(cells, n)) > n for cells in rows)
+    for t, (i, cells) in enumerate(zip(parsed.data_lines, rows)):
+        full = _full_row(cells, n)
+        if trailing and len(full) == n:
+            full = full + [""]
+        if full != lines[i].rstrip("\r\n").split("\t"):
+            lines[i] = "\t".join(full) + lines[i][len(lines[i].rstrip("\r\n")):]
+    axes = lines[4].rstrip("\r\n")
+    if trailing and len(axes.split("\t")) == n:
+        lines[4] = axes + "\t" + lines[4][len(axes):]
     text = "".join(lines)
     atomic_write(path, lambda handle: handle.write(text.encode(parsed.encoding)))
 
