@@ -527,7 +527,8 @@ def write(seq: MarkerSequence, path) -> None:
     integer files the filled coordinates are rounded to the file's scale (``POINT:SCALE``).
 
     Without a C3D source, a fresh float-format C3D is written with the ``c3d`` package's Writer:
-    first frame ``seq.first_frame`` (at least 1), missing samples residual -1 and zeros, filled
+    first frame ``seq.first_frame`` (0, the number of arrays, becomes 1; one the header cannot
+    hold becomes 1 with a warning), missing samples residual -1 and zeros, filled
     samples (``meta["filled"]``) residual 0, observed samples residual 1 (the smallest non-zero
     residual: their true residual is unknown, and 0 would mark them as interpolated).
     """
@@ -705,7 +706,11 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     for name, desc, data, dims in _label_params(labels, path):
         writer.point_group.add_param(name, desc=desc, bytes_per_element=-1, bytes=data,
                                      dimensions=dims)
-    first = max(int(seq.first_frame), 1)
+    first = int(seq.first_frame) or 1          # the c3d package writes a first frame 0 as 1
+    if first < 0 or (first > 1 and first + T - 1 > 0xFFFF):
+        warnings.warn(f"{path.name}: first frame {first} does not fit a C3D header (frames "
+                      f"0-65535); written as 1", stacklevel=4)
+        first = 1
     writer.set_start_frame(first)
     valid = np.isfinite(seq.points).all(axis=2)
     big = valid & (np.abs(seq.points) > np.finfo(np.float32).max).any(axis=2)
