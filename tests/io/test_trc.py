@@ -2,6 +2,8 @@
 every untouched cell; fresh files round-trip."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -115,3 +117,20 @@ def test_trc_filling_a_short_row(tmp_path):
     filled.meta["filled"] = read.mask
     torchfill.write(filled, tmp_path / "filled.trc")
     np.testing.assert_allclose(torchfill.read(tmp_path / "filled.trc").points[12:15, 2], 1.5)
+
+
+@pytest.mark.parametrize("suffix, label, stored", [
+    (".trc", "R\tASIS", "R ASIS"),                          # a tab would split the TRC cell
+    (".c3d", "L" * 300, "L" * 255),                         # C3D strings hold 255 bytes
+])
+def test_what_a_format_cannot_hold_is_changed_with_one_warning_line(tmp_path, suffix, label,
+                                                                     stored):
+    seq = synthetic(T=10, J=3, gaps=False)
+    seq.labels[1] = label
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torchfill.write(seq, tmp_path / f"x{suffix}")
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert "\n" not in message and repr(label[:20])[:-1] in message
+    assert torchfill.read(tmp_path / f"x{suffix}").labels[1] == stored
