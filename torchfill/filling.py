@@ -116,7 +116,8 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if prior is not None:
         return _refill(data, prior, method, mask=mask, max_gap=max_gap, window=window,
                        progress=progress, constraints=constraints, extrapolate=extrapolate,
-                       return_std=return_std, dtype=dtype, workers=workers, **params)
+                       return_std=return_std, dtype=dtype, workers=workers, segments=segments,
+                       **params)
     method = default_method() if method is None else method
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")

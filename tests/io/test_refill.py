@@ -23,6 +23,7 @@ def _gappy(T=150, J=8) -> MarkerSequence:
     P[-60:, J - 1] = np.nan                  # long trial-end gap
     P[70:80, 3] = np.nan                     # interior gap
     P[100:104, 5] = np.nan
+    P[:3] = np.nan                           # no marker seen: never filled
     seq.first_frame = 11
     return seq
 
