@@ -134,3 +134,16 @@ def test_what_a_format_cannot_hold_is_changed_with_one_warning_line(tmp_path, su
     message = str(caught[0].message)
     assert "\n" not in message and repr(label[:20])[:-1] in message
     assert torchfill.read(tmp_path / f"x{suffix}").labels[1] == stored
+
+
+def test_control_characters_do_not_end_a_line(tmp_path):
+    """Only CR/LF end a TRC line (``str.splitlines`` also breaks at \\x1c-\\x1e, \\x85, ...): a
+    cell holding one is a one-line error, not a row split in two."""
+    seq = synthetic(T=12, J=2, gaps=False)
+    path = tmp_path / "ctl.trc"
+    torchfill.write(seq, path)
+    lines = path.read_bytes().split(b"\n")
+    lines[8] = lines[8].replace(b".", b".\x1e", 1)
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(torchfill.io.FileFormatError, match=r"line 9: .* is not a number"):
+        torchfill.read(path)

@@ -247,7 +247,7 @@ def _csv_comments(text: str, path: Path) -> tuple[str, dict]:
     """Leading ``#`` lines removed from ``text``, and the ``rate``, ``units`` and
     ``first_frame`` they set (``key=value`` items separated by ``;`` or ``,``)."""
     settings: dict = {}
-    lines = text.splitlines(keepends=True)
+    lines = re.findall(r"[^\r\n]*(?:\r\n|\n|\r|$)", text)
     k = 0
     while k < len(lines) and lines[k].lstrip().startswith("#"):
         for item in re.split(r"[;,]", lines[k].lstrip()[1:]):
@@ -284,7 +284,7 @@ def _csv_filled(cells: list[str], J: int, path: Path) -> np.ndarray:
 
 
 def _delimiter(text: str) -> str:
-    first = re.sub(r'"[^"]*"', "", text.splitlines()[0]) if text else ""   # not inside quotes
+    first = re.sub(r'"[^"]*"', "", re.split(r"\r\n|\n|\r", text)[0]) if text else ""
     return max((",", ";", "\t"), key=first.count) if first else ","
 
 

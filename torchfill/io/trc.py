@@ -66,9 +66,15 @@ def _cells(line: str) -> list[str]:
     return line.rstrip("\r\n").split("\t")
 
 
+_LINE = re.compile(r"[^\r\n]*(?:\r\n|\n|\r|$)")
+
+
 def _split_lines(text: str) -> list[str]:
-    """Lines with their line endings kept (so a write-back can reproduce them)."""
-    return text.splitlines(keepends=True)
+    """Lines with their line endings kept (so a write-back can reproduce them). Only CR, LF and
+    CRLF end a line: ``str.splitlines`` would also break at control characters such as \\x1e
+    inside a cell."""
+    lines = _LINE.findall(text)
+    return [line for line in lines if line]
 
 
 class _Parsed:
