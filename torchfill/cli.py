@@ -189,9 +189,11 @@ def _plan_fill(args, src: Path):
     if args.in_place:
         if args.output:
             raise FileFormatError(f"{src}: --in-place writes onto the input; leave out -o")
+        if openpose:
+            raise FileFormatError(f"{src}: --in-place writes files, not OpenPose folders; give -o")
         out = src
         if not args.no_backup:
-            plan.backup = Path(f"{src}.orig")
+            plan.backup = src.with_name(f"{src.stem}.orig{src.suffix}")
             if os.path.lexists(plan.backup):
                 raise FileFormatError(f"{plan.backup}: exists (an earlier original?); move it "
                                       "away, or give --no-backup")
@@ -205,8 +207,8 @@ def _plan_fill(args, src: Path):
                                   "fill several recordings")
     _check_format(out, openpose)
     plan.out_path = plan.add_output(out, "output", replace_input=args.in_place, folder=openpose,
-                                    hint="give another -o, or --in-place to replace it (a .orig "
-                                         "copy is kept)")
+                                    hint="give another -o, or --in-place to replace it (the "
+                                         "original is kept as NAME.orig.EXT)")
     if plan.backup is not None:
         plan.add_output(plan.backup, "backup")
     if args.std:
@@ -262,7 +264,7 @@ def _fill_options(args, src) -> tuple[str, dict]:
     import torchfill
     from torchfill.solvers import base
 
-    src = f"{src}" if src is not None else ""
+    src = f"{src}: " if src is not None else ""
     if args.max_gap is not None and args.max_gap < 0:
         raise ValueError(f"{src}max_gap expected >= 0, found {args.max_gap}")
     params = _parse_params(args.param)
@@ -700,7 +702,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="how far a gap at a trial end may be extrapolated without rigid donors "
                         "(default 0.25; 'none': no limit)")
     p.add_argument("--in-place", action="store_true",
-                   help="write the fill onto IN itself (keeps IN.orig unless --no-backup)")
+                   help="write the fill onto IN itself (keeps the original as NAME.orig.EXT unless "
+                        "--no-backup)")
     p.add_argument("--no-backup", action="store_true", help="with --in-place: keep no .orig copy")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_threads(p)

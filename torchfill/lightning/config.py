@@ -165,6 +165,7 @@ def load_config(path) -> Config:
     for key in ("recordings", "protocol", "methods"):
         if key not in raw:
             raise bad(f"missing required key {key!r}")
+    name = _name(raw.get("name"), path, bad)
     env = os.environ.get("TORCHFILL_DATA")
     data_dir = Path(env).resolve() if env else Path(raw.get("data_dir") or
                                                     path.parent / "../../shared/data").resolve()
@@ -196,7 +197,7 @@ def load_config(path) -> Config:
         if own not in (None, SELF):
             _check_files(data_dir, _str_list(own, f"methods.{m.label}.training", bad),
                          f"methods.{m.label}: training recording", bad)
-    return Config(path=path, name=_name(raw.get("name"), path, bad), data_dir=data_dir,
+    return Config(path=path, name=name, data_dir=data_dir,
                   results_dir=results_dir, recordings=recordings, protocol=protocol, grid=grid,
                   seeds=seeds, methods=methods, metrics=metric_names, table=table,
                   training=training, frames=frames, segments=segments, references=references,
