@@ -311,18 +311,21 @@ def _worker(conn) -> None:
     def on_term(signum, frame):
         raise SystemExit(128 + signum)               # unwinds: temporary files are removed
     signal.signal(signal.SIGTERM, on_term)
-    while True:
-        try:
-            job = conn.recv()
-        except (EOFError, OSError):
-            return
-        if job is None:
-            return
-        row = fill_file(job)
-        try:
-            conn.send(row)
-        except OSError:
-            return
+    try:
+        while True:
+            try:
+                job = conn.recv()
+            except (EOFError, OSError):
+                return
+            if job is None:
+                return
+            row = fill_file(job)
+            try:
+                conn.send(row)
+            except OSError:
+                return
+    except SystemExit as stop:        # unwound (temporary files removed): skip the slow teardown
+        os._exit(stop.code if isinstance(stop.code, int) else 1)
 
 
 @contextmanager

@@ -396,6 +396,7 @@ def _cmd_fill_batch(args) -> int:
                                   std=std and str(std), read_options=_pose_options(args, src)))
     order = {job.input: i for i, job in enumerate(jobs)}
     rows = []
+    started = time.time()
     try:
         with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar, \
                 closing(batch.run(jobs, workers=args.workers, ray_address=args.ray)) as results:
@@ -404,15 +405,23 @@ def _cmd_fill_batch(args) -> int:
                     bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
                 rows.append(row)
                 bar.update()
-    except (KeyboardInterrupt, SystemExit) as stop:
-        done = sum(1 for row in rows if not row["error"])
-        print(f"torchfill: interrupted: {done} of {len(jobs)} file(s) filled, "
-              f"{len(rows) - done} failed, {len(jobs) - len(rows)} stopped or not started "
-              "(nothing partial written)", file=sys.stderr)
+    except (KeyboardInterrupt, SystemExit) as stop:     # the workers are gone by now
+        done = sum(1 for job in jobs if _written_since(job.output, started))
+        failed = sum(1 for row in rows if row["error"])
+        print(f"torchfill: interrupted: {done} of {len(jobs)} file(s) filled, {failed} failed, "
+              f"{len(jobs) - done - failed} stopped or not started (nothing partial written)",
+              file=sys.stderr)
         return 130 if isinstance(stop, KeyboardInterrupt) else (stop.code or 130)
     rows.sort(key=lambda row: order[row["file"]])
     _say(args, batch.table(rows))
     return EXIT_ERROR if any(row["error"] for row in rows) else 0
+
+
+def _written_since(path: str, start: float) -> bool:
+    try:
+        return os.stat(path).st_mtime >= start - 1.0
+    except OSError:
+        return False
 
 
 def _side_folder(value: str | None, option: str) -> str | None:

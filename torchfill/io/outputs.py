@@ -61,8 +61,13 @@ class _Write:
 
 @dataclass
 class _Template:
-    copy: Path | None    # private copy of a source file (None for folders)
+    copy: Path | None    # private copy of a source file (None: folders, formats not written back)
     stamp: tuple         # the source's fingerprint when it was copied
+    folder: bool = False
+
+
+#: suffixes whose writers build the output from the source file's bytes
+WRITE_BACK = (".c3d", ".trc")
 
 
 class Outputs:
@@ -101,8 +106,10 @@ class Outputs:
 
     def _keep(self, path: Path) -> _Template:
         before = _stamp(path)
-        if not path.is_file():                               # a folder: remember its state only
-            return _Template(None, before)
+        if path.is_dir():                                    # a folder: remember its state only
+            return _Template(None, before, True)
+        if path.suffix.lower() not in WRITE_BACK:            # no template needed, only the stamp
+            return _Template(None, before, False)
         if self._private is None:
             self._private = Path(tempfile.mkdtemp(prefix="torchfill-template-"))
         holder = Path(tempfile.mkdtemp(dir=self._private))
@@ -128,7 +135,7 @@ class Outputs:
             return seq
         changed = _stamp(Path(source)) != kept.stamp
         if kept.copy is None:
-            if changed:
+            if changed and kept.folder:
                 raise FileFormatError(f"{source}: changed during the fill; nothing written (run "
                                       "again on the complete folder)")
             return seq
