@@ -202,10 +202,10 @@ def test_batch_honours_single_file_options_and_shows_warning_texts(tmp_path, wal
     for k in range(2):
         single = tmp_path / f"single{k}.npz"
         assert main(["fill", str(inputs / f"t{k}.npz"), "-o", str(single), "-m", "linear",
-                     "--extrapolate", "0.1", "-q"]) == 0
+                     "--extrapolate", "0.1", "--std", str(tmp_path / f"s{k}.csv"), "-q"]) == 0
         batch = torchfill.read(tmp_path / "out" / f"t{k}.npz")
         np.testing.assert_array_equal(batch.points, torchfill.read(single).points)
-        assert batch.mask[:30, 2].all() and not batch.mask[30:, 2].any()   # 0.1 s honoured
+        assert batch.mask[:30, 2].all() and not batch.mask[40:, 2].any()   # 0.1 s: 10 frames at most
         assert "<html" in (tmp_path / "rep" / f"t{k}.qc.html").read_text()
         assert (tmp_path / f"t{k}_std.csv").read_text().startswith("frame,")
         names = [line for line in out.splitlines() if line.startswith(f"t{k}.npz -> ")]
