@@ -381,3 +381,22 @@ def test_an_out_dir_that_is_a_symlink_loop_is_one_line(tmp_path, walk, capsys):
     for out_dir in (tmp_path / "loop", tmp_path / "loop" / "sub"):
         assert main(["fill", str(src), "--out-dir", str(out_dir), "-m", "linear"]) == 2
         _one_error(capsys, "symbolic link loop")
+
+
+def test_experiment_results_cannot_replace_a_recording(tmp_path, walk, capsys, monkeypatch):
+    monkeypatch.delenv("TORCHFILL_DATA", raising=False)
+    data = tmp_path / "data"
+    data.mkdir()
+    recording = data / "cases.csv"                              # a CSV recording named like a result
+    torchfill.write(torchfill.MarkerSequence(points=walk(200, 4), labels=list("abcd")), recording)
+    before = recording.read_bytes()
+    config = tmp_path / "c.yaml"
+    config.write_text(f"name: e\nrecordings: [cases.csv]\nprotocol: multi_gap\ndata_dir: {data}\n"
+                      "grid: {n_markers: [1], gap_length: [10], max_gaps: [1]}\n"
+                      "methods: {linear: {}}\n")
+    assert main(["experiment", str(config), "--output", str(data)]) == 2
+    _one_error(capsys, "would overwrite the recording")
+    os.symlink("loop", tmp_path / "loop")
+    assert main(["experiment", str(config), "--output", str(tmp_path / "loop" / "r")]) == 2
+    _one_error(capsys, "symbolic link loop")
+    assert recording.read_bytes() == before and sorted(os.listdir(data)) == ["cases.csv"]
