@@ -205,7 +205,7 @@ def test_batch_honours_single_file_options_and_shows_warning_texts(tmp_path, wal
                      "--extrapolate", "0.1", "--std", str(tmp_path / f"s{k}.csv"), "-q"]) == 0
         batch = torchfill.read(tmp_path / "out" / f"t{k}.npz")
         np.testing.assert_array_equal(batch.points, torchfill.read(single).points)
-        assert batch.mask[:30, 2].all() and not batch.mask[40:, 2].any()   # 0.1 s: 10 frames at most
+        assert batch.mask[:30, 2].all() and not batch.mask[40:, 2].any()   # 0.1 s: <= 10 frames
         assert "<html" in (tmp_path / "rep" / f"t{k}.qc.html").read_text()
         assert (tmp_path / f"t{k}_std.csv").read_text().startswith("frame,")
         names = [line for line in out.splitlines() if line.startswith(f"t{k}.npz -> ")]
@@ -345,7 +345,8 @@ def test_bad_arguments_fail_before_any_file_is_read(tmp_path, walk, capsys, monk
 def test_control_characters_are_escaped_in_terminal_output(tmp_path, walk, capsys):
     evil = "\x1b]0;owned\x07\x1b[2J\u202eM"
     src = _recording(tmp_path / "e\x1b[31m.npz", walk,
-                     labels=[evil, "M1", "M2\r\x1b[1A", "M3", "M4"], units="mm\x1b[5m")
+                     labels=[evil, "M1\ntorchfill: fake", "M2\r\x1b[1A", "M3", "M4"],
+                     units="mm\x1b[5m")
     out = tmp_path / "o\x1b[0m.npz"
     runs = [["info", str(src), "--all-markers"],
             ["fill", str(src), "-o", str(out), "-m", "linear", "--extrapolate", "0"],
@@ -358,6 +359,9 @@ def test_control_characters_are_escaped_in_terminal_output(tmp_path, walk, capsy
         for char in ("\x1b", "\x07", "\u202e", "\r"):
             assert char not in text, (argv, text)
         assert "\\x1b" in text, argv
+        if argv[0] == "info":                           # a label cannot start a line of its own
+            assert "M1\\ntorchfill: fake" in text
+            assert not any(line.startswith("torchfill: fake") for line in text.splitlines())
 
 
 def test_an_experiment_name_cannot_leave_the_results_folder(tmp_path, walk, capsys):
@@ -387,7 +391,7 @@ def test_experiment_results_cannot_replace_a_recording(tmp_path, walk, capsys, m
     monkeypatch.delenv("TORCHFILL_DATA", raising=False)
     data = tmp_path / "data"
     data.mkdir()
-    recording = data / "cases.csv"                              # a CSV recording named like a result
+    recording = data / "cases.csv"                      # a CSV recording named like a result
     torchfill.write(torchfill.MarkerSequence(points=walk(200, 4), labels=list("abcd")), recording)
     before = recording.read_bytes()
     config = tmp_path / "c.yaml"

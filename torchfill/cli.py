@@ -111,6 +111,11 @@ def escape(text: str) -> str:
                                    else f"\\u{ord(m[0]):04x}"), text)
 
 
+def _shown(text: str) -> str:
+    """One field of a table as printed: control characters and line breaks escaped."""
+    return escape(str(text)).replace("\n", "\\n").replace("\t", "\\t")
+
+
 class _Escaping:
     """A text stream that escapes control characters in what it is given (:func:`escape`); a
     carriage return at the start or end of one write stays (progress lines rewrite themselves)."""
@@ -501,8 +506,9 @@ def _cmd_info(args) -> int:
     runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
     inner = [b - a for _, a, b in runs if a > 0 and b < T]
     seen = seq.mask[:, ~never]
+    labels = [_shown(label) for label in seq.labels]     # a newline in a label stays visible too
     print(seq)
-    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
+    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {_shown(seq.units)}, "
           f"{len(runs)} gaps, longest {max((b - a for _, a, b in runs), default=0)} frames")
     print(f"  {len(inner)} interior gap(s) (longest {max(inner, default=0)} frames), "
           f"{len(runs) - len(inner)} at the trial ends; "
@@ -510,14 +516,15 @@ def _cmd_info(args) -> int:
           f"{int(seq.mask.all(axis=1).sum())} frame(s) with no marker seen")
     if never.any():
         print(f"  {int(never.sum())} marker(s) never observed: "
-              f"{', '.join(seq.labels[j] for j in range(seq.n_markers) if never[j])}")
+              f"{', '.join(labels[j] for j in range(seq.n_markers) if never[j])}")
     dups = seq.duplicates()
     if dups:
-        print("  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
+        print("  duplicate labels: " + ", ".join(f"{_shown(label)} "
+                                                 f"(markers {', '.join(map(str, idx))})"
                                                  for label, idx in dups.items()))
-    width = max((len(label) for label in seq.labels), default=6)
+    width = max((len(label) for label in labels), default=6)
     print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
-    for j, label in enumerate(seq.labels):
+    for j, label in enumerate(labels):
         own = [b - a for k, a, b in runs if k == j]
         if own or never[j] or args.all_markers:
             print(f"{label:<{width}}  {int(seq.mask[:, j].sum()):>8}  {len(own):>5}  "

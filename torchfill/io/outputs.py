@@ -173,7 +173,8 @@ class Outputs:
             raise FileFormatError(f"{path}: cannot write, the file is read-only")
         ident = _ident(st) if st is not None and not stat.S_ISLNK(st.st_mode) else None
         for read in self._reads:
-            same = landing in (read.real, read.landing) or (ident is not None and ident == read.ident)
+            same = landing in (read.real, read.landing) or (
+                ident is not None and ident == read.ident)
             if not same:
                 continue
             if replace_input and read.role == "input" and landing in (read.real, read.landing):
@@ -231,7 +232,8 @@ class Outputs:
                 raise FileFormatError(_renamed(err, tmp, path)) from None
             if isinstance(err, OSError):
                 kept = " (the existing file is unchanged)" if os.path.lexists(landing) else ""
-                raise FileFormatError(f"{path}: cannot write ({err.strerror or err}){kept}") from None
+                raise FileFormatError(f"{path}: cannot write ({err.strerror or err})"
+                                      f"{kept}") from None
             raise
         shutil.rmtree(holder, ignore_errors=True)
         return path
