@@ -241,24 +241,26 @@ class Outputs:
     def write_text(self, path, text: str, what: str = "output") -> Path:
         return self.write(path, lambda tmp: tmp.write_bytes(text.encode("utf-8")), what)
 
-    def write_sequence(self, seq, path, what: str = "output", backup: Path | None = None) -> Path:
-        """Write a recording with :func:`torchfill.io.write` (through the write-back template,
-        see :meth:`template`). ``backup``: first keep the file at ``path`` under this name (a hard
-        link where possible, else a copy); removed again if the write fails."""
-        from . import write as write_format
+    def write_sequence(self, seq, path, what: str = "output", backup: Path | None = None,
+                       **kwargs) -> Path:
+        """Write a recording with the format writer of ``path``'s suffix (through the write-back
+        template, see :meth:`template`; ``kwargs`` go to the writer). ``backup``: first keep the
+        file at ``path`` under this name (a hard link where possible, else a copy); removed again
+        if the write fails."""
+        from . import _pick
 
         path = Path(path)
         seq = self.template(seq)
         if path.is_dir() or not path.suffix:             # an OpenPose folder: its own atomic write
             self._check(path, what, replace_input=False, folder=True, hint="",
                         me=next((w for w in self._writes if w.path == path), None))
-            write_format(seq, path)
+            _pick(path, "write")(seq, path, **kwargs)
             return path
         made = False
 
         def serialise(tmp: Path) -> None:
             nonlocal made
-            write_format(seq, tmp)
+            _pick(tmp, "write")(seq, tmp, **kwargs)
             if backup is not None:
                 _copy_aside(path, backup)
                 made = True
