@@ -128,6 +128,7 @@ def fill_file(job: Job) -> dict:
             for path, what in ((job.std, "--std file"), (job.report, "report")):
                 if path:
                     plan.add_output(path, what)
+            plan.keep_templates()
             seq = torchfill.read(job.input, **job.read_options)
             row.update(frames=seq.n_frames, markers=seq.n_markers, missing=int(seq.mask.sum()))
             params = dict(job.params)

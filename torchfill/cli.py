@@ -148,8 +148,10 @@ def _cmd_fill(args) -> int:
     if len(args.input) > 1 or args.out_dir or args.ray:
         return _cmd_fill_batch(args)
     src = Path(args.input[0])
-    with _plan_fill(args, src) as plan:                 # every check before any file is read
+    plan, out_path, backup = _plan_fill(args, src)     # every check before any file is read
+    with plan:
         method, options = _fill_options(args, src)
+        plan.keep_templates()
         seq = torchfill.read(src, **_pose_options(args))
         if args.training:
             options["training"] = [torchfill.read(path) for path in args.training]
@@ -161,8 +163,8 @@ def _cmd_fill(args) -> int:
                                     return_std=bool(args.std), **options)
         filled = filled[0] if args.std else filled
         _clear_progress(args)
-        plan.write_sequence(filled, plan.out_path, backup=plan.backup)
-        written = [plan.out_path]
+        plan.write_sequence(filled, out_path, backup=backup)
+        written = [out_path]
         if args.std:
             _write_std(filled, Path(args.std), plan)
             written.append(args.std)
@@ -174,23 +176,33 @@ def _cmd_fill(args) -> int:
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
                f"({info['n_iter']} iterations); {left} left unfilled -> "
                + ", ".join(map(str, written))
-               + (f" (original kept as {plan.backup})" if plan.backup else ""))
+               + (f" (original kept as {backup})" if backup else ""))
     return 0
 
 
 def _plan_fill(args, src: Path):
-    """The guarded writer of a single-file fill, with every path checked (see io/outputs.py)."""
-    from torchfill.io import FileFormatError
+    """The guarded writer of a single-file fill with every path checked (see io/outputs.py), the
+    output path and the backup path of ``--in-place`` (or None)."""
     from torchfill.io.outputs import Outputs
 
     _check_input(src, batch_hint=True)
-    openpose = src.is_dir()
     plan = Outputs()
+    try:
+        return (plan, *_plan_paths(args, src, plan))
+    except BaseException:
+        plan.close()
+        raise
+
+
+def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
+    from torchfill.io import FileFormatError
+
+    openpose = src.is_dir()
     plan.add_input(src, template=True)
     for path in args.training or ():
         _check_input(Path(path))
         plan.add_input(path, "training")
-    plan.backup = None
+    backup = None
     if args.in_place:
         if args.output:
             raise FileFormatError(f"{src}: --in-place writes onto the input; leave out -o")
@@ -198,9 +210,9 @@ def _plan_fill(args, src: Path):
             raise FileFormatError(f"{src}: --in-place writes files, not OpenPose folders; give -o")
         out = src
         if not args.no_backup:
-            plan.backup = src.with_name(f"{src.stem}.orig{src.suffix}")
-            if os.path.lexists(plan.backup):
-                raise FileFormatError(f"{plan.backup}: exists (an earlier original?); move it "
+            backup = src.with_name(f"{src.stem}.orig{src.suffix}")
+            if os.path.lexists(backup):
+                raise FileFormatError(f"{backup}: exists (an earlier original?); move it "
                                       "away, or give --no-backup")
     else:
         if args.no_backup:
@@ -211,17 +223,17 @@ def _plan_fill(args, src: Path):
                                   f"{out / _default_output(src).name}), or --out-dir {out} to "
                                   "fill several recordings")
     _check_format(out, openpose)
-    plan.out_path = plan.add_output(out, "output", replace_input=args.in_place, folder=openpose,
+    plan.add_output(out, "output", replace_input=args.in_place, folder=openpose,
                                     hint="give another -o, or --in-place to replace it (the "
                                          "original is kept as NAME.orig.EXT)")
-    if plan.backup is not None:
-        plan.add_output(plan.backup, "backup")
+    if backup is not None:
+        plan.add_output(backup, "backup")
     if args.std:
         _check_suffix(Path(args.std), ".csv", "--std")
         plan.add_output(args.std, "--std file")
     if args.report:
         plan.add_output(args.report, "report")
-    return plan
+    return out, backup
 
 
 def _check_input(path: Path, batch_hint: bool = False) -> None:

@@ -18,8 +18,8 @@ signal) leaves the old file as it was and no temporary file behind. A symbolic l
 is replaced by the new file; its target is never written.
 
 Write-back (a C3D or TRC written into a copy of its source file) takes its template from a private
-copy of the source made when the run registered it (:meth:`Outputs.add_input` with
-``template=True``), not from whatever is on disk at write time: a source replaced during a long fill
+copy of the source made just before it was read (:meth:`Outputs.add_input` with
+``template=True``, then :meth:`Outputs.keep_templates`), not from whatever is on disk at write time: a source replaced during a long fill
 cannot leak into the output, and the warning then says what happened.
 """
 from __future__ import annotations
@@ -78,22 +78,33 @@ class Outputs:
         self._reads: list[_Read] = []
         self._writes: list[_Write] = []
         self._templates: dict[str, _Template] = {}
+        self._wanted: list[_Read] = []
         self._private: Path | None = None
 
     # -- what the run reads --------------------------------------------------------------------
     def add_input(self, path, role: str = "input", *, template: bool = False) -> Path:
-        """Register a file (or OpenPose folder) the run reads. ``template``: keep a private copy
-        of it now, for a write-back later (see the module notes)."""
+        """Register a file (or OpenPose folder) the run reads (its content is not read here).
+        ``template``: :meth:`keep_templates` keeps a private copy of it for a write-back later
+        (see the module notes)."""
         path = Path(path)
         try:
             real = os.path.realpath(path)
             ident = _ident(os.stat(path))
         except (OSError, ValueError):
             real, ident = os.path.abspath(path), None
-        self._reads.append(_Read(role, path, real, _landing_or_abs(path), ident))
-        if template and ident is not None and real not in self._templates:
-            self._templates[real] = self._keep(path)
+        read = _Read(role, path, real, _landing_or_abs(path), ident)
+        self._reads.append(read)
+        if template:
+            self._wanted.append(read)
         return path
+
+    def keep_templates(self) -> None:
+        """Copy the template inputs privately; call just before reading them (and
+        :meth:`confirm_inputs` just after)."""
+        for read in self._wanted:
+            if read.real not in self._templates and os.path.exists(read.path):
+                self._templates[read.real] = self._keep(read.path)
+        self._wanted = []
 
     def confirm_inputs(self) -> None:
         """Raise if a template source changed between its copy and now (call after reading it:
