@@ -103,7 +103,7 @@ def _cmd_fill(args) -> int:
     seq = torchfill.read(args.input, **_pose_options(args))
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     torchfill.io.check_target(out_path)                 # refuse now, not after the fill
-    params = _parse_params(args.param) | _window(args) | _dtype(args)
+    params = _parse_params(args.param) | _window(args) | _dtype(args) | _segments(args)
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = torchfill.default_method() if args.method is None else args.method
@@ -167,7 +167,7 @@ def _cmd_fill_batch(args) -> int:
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    params = _parse_params(args.param) | _window(args) | _dtype(args)
+    params = _parse_params(args.param) | _window(args) | _dtype(args) | _segments(args)
     if not args.constraints:
         params["constraints"] = False
     jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
@@ -230,11 +230,29 @@ def _cmd_evaluate(args) -> int:
 _MM = {"mm": (1.0, "mm"), "m": (1000.0, "mm"), "cm": (10.0, "mm")}
 
 
+def _segments(args) -> dict:
+    """``fill()``'s ``segments`` from ``--segments`` (a YAML file, 'names' or 'data'), read
+    now so that a bad file stops the run before any work."""
+    value = getattr(args, "segments", None)
+    if value is None:
+        return {}
+    if value in ("names", "data", "auto"):
+        return {"segments": value}
+    from torchfill.segments import load
+    return {"segments": load(value)}
+
+
 def _cmd_info(args) -> int:
     import torchfill
     from torchfill.metrics import gap_runs
 
     seq = torchfill.read(args.input, markers_only=not args.all_points, **_pose_options(args))
+    if args.segments is not None:          # the segments a fill would use, as an editable YAML
+        from torchfill.segments import resolve
+        source = None if args.segments == "auto" else args.segments
+        segs = resolve(source, seq.labels, seq.points, ~seq.mask)
+        sys.stdout.write(segs.to_yaml())
+        return 0
     T = seq.n_frames
     never = seq.mask.all(axis=0)
     runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
@@ -452,6 +470,10 @@ def _parser() -> argparse.ArgumentParser:
                         "tucker_tnn); observed samples are written as read either way")
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
+    p.add_argument("--segments", metavar="FILE",
+                   help="which markers move together: a YAML file as 'torchfill info IN "
+                        "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "
+                        "recording); default: the tables when the labels fit, else the data")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_threads(p)
     _add_pose_options(p)
@@ -495,6 +517,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-markers", action="store_true", help="list markers without gaps too")
     p.add_argument("--all-points", action="store_true",
                    help="include model outputs and virtual points (C3D)")
+    p.add_argument("--segments", nargs="?", const="auto", metavar="SOURCE",
+                   help="print the segments a fill uses (YAML to edit and pass back with fill "
+                        "--segments FILE); SOURCE: 'names', 'data', a YAML file or the default")
     _add_pose_options(p)
     p.set_defaults(run=_cmd_info)
 

@@ -50,9 +50,14 @@ PAIR_BLOCK = 1 << 20
 #: 0.03 / 0.05 with complete or average linkage, 0.05 complete agreed best with the named tables
 #: on HDM05, CMU, Plug-in Gait, OpenSim and Qualisys cluster recordings (scripts/eval_segments.py).
 RELATIVE_SPREAD = 0.05
+#: Data-found clusters grow to at most this many markers (a body segment carries a few; a dense
+#: surface would otherwise merge into one cluster at a cost quadratic in its size).
+MAX_SIZE = 24
 #: Segments found from the data for a fill also give each marker its own: itself and this many
 #: most rigid neighbours (clusters alone left many samples without three mates).
 DATA_MATES = 5
+#: ... for recordings of at most this many markers (a dense surface has clusters enough).
+MATES_UP_TO = 300
 
 # --------------------------------------------------------------------------------------------
 # Name tables. Marker names are normalised (lower case, no separators); "#" stands for the side
@@ -76,7 +81,7 @@ _SIDED = {
               "#shank1", "#shank2", "#shank3", "#shank4", "#sk1", "#sk2", "#sk3", "#sk4",
               "#tb1", "#tb2", "#tb3", "#sh1", "#sh2", "#sh3", "#sh4",
               "#shankupper", "#shankfront", "#shankrear",
-              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm"],
+              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm", "#knee"],
     "foot": ["#ank", "#hee", "#toe", "#mt5", "#fmh", "#vmh", "#heel", "#mt1", "#met", "#met1",
              "#cal", "#toetip", "#midfootsup", "#midfootlat", "#toelat", "#toemed",
              "#fcc", "#fm1", "#fm2", "#fm5", "#ft1", "#ft2", "#ft3", "#mal", "#mall"],
@@ -181,12 +186,12 @@ class Segments(OrderedDict):
         groups = sorted((sorted(g) for g in groups if len(g) >= min_size), key=lambda g: g[0])
         out = cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
                   source="data")
-        if mates > 0:
+        if mates > 0 and J <= MATES_UP_TO:
             rel = stats.relative
             ok = np.isfinite(rel) & (rel <= 3 * relative_spread)
             a = np.concatenate([stats.j[ok], stats.k[ok]])
             b = np.concatenate([stats.k[ok], stats.j[ok]])
-            r = np.concatenate([rel[ok], rel[ok]])
+            r = np.concatenate([stats.spread[ok], stats.spread[ok]])     # absolute: the error
             order = np.lexsort((r, a))
             a, b = a[order], b[order]
             for j in range(J):
@@ -472,6 +477,8 @@ def _cluster(J: int, stats: PairStats, limit: float) -> list[list[int]]:
         if ga == gb:
             continue
         A, B = groups[ga], groups[gb]
+        if len(A) + len(B) > MAX_SIZE:
+            continue
         n_meas = n_good = 0
         for x in A:
             for y in B:
