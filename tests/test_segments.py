@@ -166,3 +166,18 @@ def test_rigid_pairs_memory_grows_linearly_with_markers():
     tracemalloc.stop()
     assert pairs.j.size <= 12 * J                      # neighbours only
     assert peak < 150e6
+
+
+@pytest.mark.parametrize("T", [1, 2, 3, 7, 50])
+def test_column_quantiles_are_numpys_nanquantile(T):
+    from torchfill.segments import _col_quantile
+    rng = np.random.default_rng(T)
+    D = rng.random((T, 30))
+    D[rng.random((T, 30)) < 0.3] = np.nan
+    D[:, 0] = np.nan                                       # a pair never seen together
+    n = np.isfinite(D).sum(axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for q in (0.5, 0.95):
+            np.testing.assert_allclose(_col_quantile(np.sort(D, axis=0), n, q),
+                                       np.nanquantile(D, q, axis=0), rtol=0, atol=1e-15)
