@@ -272,7 +272,8 @@ def main() -> None:
     rows, per_gaps = [], []
     for c in suite:
         keep = {k: v for k, v in reuse.get(c.name, {}).items()
-                if any(k in (m, f"{m}_s", f"{m}_cpu") for m in methods if m != DEFAULT)}
+                if any(k in (m, f"{m}_s", f"{m}_cpu") for m in methods)
+                or (k in ("spearman", "within") and DEFAULT in methods)}
         row, g = run(c, methods, keep)
         rows.append(row)
         per_gaps += g
