@@ -247,6 +247,9 @@ def main() -> None:
                     help="take methods already scored in these CSVs")
     ap.add_argument("--only", help="comma-separated substrings of case names to run")
     ap.add_argument("--seeds", type=int, default=1, help="seeds of the assignment and offset")
+    ap.add_argument("--shard", default="0/1", metavar="I/N",
+                    help="run every N-th case from the I-th (processes side by side; merge their "
+                         "CSVs with --reuse)")
     ap.add_argument("--list", action="store_true", help="list the cases and stop")
     ap.add_argument("--doc", type=Path, help="also write the summary into this docs page, between "
                                              "its <!-- real_gap_suite:start/end --> markers "
@@ -259,6 +262,8 @@ def main() -> None:
     suite = mask_suite(args.mask_suite) if args.mask_suite else cases(seeds=args.seeds)
     if args.only:
         suite = [c for c in suite if any(s in c.name for s in args.only.split(","))]
+    i, n = (int(x) for x in args.shard.split("/"))
+    suite = suite[i::n]
     if args.list:
         for c in suite:
             print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, "
