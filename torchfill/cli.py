@@ -318,7 +318,8 @@ def _fill_options(args, src) -> tuple[str, dict]:
         takes = [m for m in names if "training" in base._REGISTRY[m].fit_data]
         raise ValueError(f"{src}{method} takes no training data; methods that do: "
                          f"{', '.join(takes)}")
-    options = {"params": params} | _window(args) | _dtype(args) | _extrapolate(args)
+    options = ({"params": params} | _window(args) | _dtype(args) | _extrapolate(args)
+               | _segments(args))
     options["constraints"] = args.constraints
     return method, options
 
@@ -508,11 +509,29 @@ def _cmd_evaluate(args) -> int:
 _MM = {"mm": (1.0, "mm"), "m": (1000.0, "mm"), "cm": (10.0, "mm")}
 
 
+def _segments(args) -> dict:
+    """``fill()``'s ``segments`` from ``--segments`` (a YAML file, 'names' or 'data'), read
+    now so that a bad file stops the run before any work."""
+    value = getattr(args, "segments", None)
+    if value is None:
+        return {}
+    if value in ("names", "data", "auto"):
+        return {"segments": value}
+    from torchfill.segments import load
+    return {"segments": load(value)}
+
+
 def _cmd_info(args) -> int:
     import torchfill
     from torchfill.metrics import gap_runs
 
     seq = torchfill.read(args.input, markers_only=not args.all_points, **_pose_options(args))
+    if args.segments is not None:          # the segments a fill would use, as an editable YAML
+        from torchfill.segments import resolve
+        source = None if args.segments == "auto" else args.segments
+        segs = resolve(source, seq.labels, seq.points, ~seq.mask)
+        sys.stdout.write(segs.to_yaml())
+        return 0
     T = seq.n_frames
     never = seq.mask.all(axis=0)
     runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
@@ -733,12 +752,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
     p.add_argument("--extrapolate", metavar="SECONDS",
-                   help="how far a gap at a trial end may be extrapolated without rigid donors "
-                        "(default 0.25; 'none': no limit)")
+                   help="seconds a gap at a trial end may be extrapolated in time, in frames "
+                        "too empty for a spatial fill (default 0.25); 'none': fill every sample, "
+                        "also those whose estimated error is above 30 mm (left empty by default)")
     p.add_argument("--in-place", action="store_true",
                    help="write the fill onto IN itself (keeps the original as NAME.orig.EXT unless "
                         "--no-backup)")
     p.add_argument("--no-backup", action="store_true", help="with --in-place: keep no .orig copy")
+    p.add_argument("--segments", metavar="FILE",
+                   help="which markers move together: a YAML file as 'torchfill info IN "
+                        "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "
+                        "recording); default: the tables when the labels fit, else the data")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_threads(p)
     _add_pose_options(p)
@@ -782,6 +806,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--all-markers", action="store_true", help="list markers without gaps too")
     p.add_argument("--all-points", action="store_true",
                    help="include model outputs and virtual points (C3D)")
+    p.add_argument("--segments", nargs="?", const="auto", metavar="SOURCE",
+                   help="print the segments a fill uses (YAML to edit and pass back with fill "
+                        "--segments FILE); SOURCE: 'names', 'data', a YAML file or the default")
     _add_pose_options(p)
     p.set_defaults(run=_cmd_info)
 
