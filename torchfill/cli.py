@@ -13,7 +13,6 @@ import json
 import os
 import signal
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -32,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             status = args.run(args)
-        for w in caught:
+        for w in caught if not getattr(args, "quiet", False) else ():    # -q: errors only
             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning)):
                 print(f"torchfill: warning: {_one_line(w.message)}", file=sys.stderr)
         return status
@@ -113,7 +112,6 @@ def _cmd_fill(args) -> int:
         filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
                                 constraints=args.constraints, return_std=bool(args.std), **params)
     filled = filled[0] if args.std else filled
-    _clear_progress(args)
     torchfill.write(filled, out_path)
     if args.std:
         _write_std(filled, Path(args.std))
@@ -121,8 +119,9 @@ def _cmd_fill(args) -> int:
         _write_report(seq, filled, Path(args.report), str(args.input))
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
-    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
-               f"({info['n_iter']} iterations); {left} left unfilled -> {out_path}")
+    steps = f" ({info['n_iter']} iterations)" if info["n_iter"] > info["windows"] else ""
+    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s{steps}; "
+               f"{left} left unfilled -> {out_path}")
     return 0
 
 
@@ -213,8 +212,7 @@ def _cmd_evaluate(args) -> int:
         with _naming(args.input):   # scored everywhere: no extrapolation limit
             filled = torchfill.fill(incomplete, method, progress=_progress(args),
                                     extrapolate=None, **params)
-        _clear_progress(args)
-        info = filled.meta["fill_info"]
+            info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
         rows.append({"method": method, **{k: v * factor for k, v in errors.items()},
                      "seconds": info["seconds"], "iterations": info["n_iter"]})
@@ -395,25 +393,10 @@ def _say(args, text: str) -> None:
         print(text, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
 
 
-def _shows_progress(args) -> bool:
+def _progress(args) -> bool:
+    """A fill's bar (percent, time left; see torchfill.progress) on a terminal, unless -q. Not
+    on a terminal the command's own summary line is the only report."""
     return not getattr(args, "quiet", False) and sys.stderr.isatty()
-
-
-def _progress(args):
-    if not _shows_progress(args):
-        return None
-    start = time.perf_counter()
-
-    def show(info: dict) -> None:
-        extra = "  ".join(f"{k}={v:.3g}" for k, v in info.items() if k != "iter")
-        print(f"\r  iter {int(info['iter']):>5}  {time.perf_counter() - start:6.1f} s  {extra}"[:100],
-              end="", file=sys.stderr, flush=True)
-    return show
-
-
-def _clear_progress(args) -> None:
-    if _shows_progress(args):
-        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -452,7 +435,8 @@ def _parser() -> argparse.ArgumentParser:
                         "tucker_tnn); observed samples are written as read either way")
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors (no progress, summary or warnings)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
@@ -465,7 +449,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("filled", metavar="FILLED")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="HTML report (default: FILLED with suffix .qc.html)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors (no progress, summary or warnings)")
     p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
@@ -485,7 +470,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors (no progress, summary or warnings)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
