@@ -1,5 +1,5 @@
 """Progress of a fill: a bar with percent and time left on a terminal (tested through a pty),
-nothing but the summary in a pipe, nothing but errors under -q; the API's progress= argument."""
+nothing but the command's own lines in a pipe, only warnings and errors under -q (-qq: errors); the API's progress= argument."""
 from __future__ import annotations
 
 import fcntl
@@ -83,6 +83,16 @@ def test_quiet_on_a_terminal_prints_nothing(gappy, tmp_path):
     rc, out = _on_terminal(_cli("fill", gappy, "-o", tmp_path / "out.c3d", "-m", "svt", "-q"))
     assert rc == 0 and out.strip() == "", out
     assert (tmp_path / "out.c3d").is_file()
+
+
+def test_quiet_keeps_warnings_and_double_quiet_drops_them(gappy, tmp_path):
+    cmd = _cli("fill", gappy, "-o", tmp_path / "out.c3d", "-m", "linear", "--max-gap", "20")
+    quiet = subprocess.run(cmd + ["-q"], capture_output=True, text=True, env=_env(), cwd=ROOT)
+    assert quiet.returncode == 0 and quiet.stdout == ""
+    assert quiet.stderr.startswith("torchfill: warning:") and "left unfilled" in quiet.stderr
+    silent = subprocess.run(cmd + ["-qq", "-o", str(tmp_path / "out2.c3d")], capture_output=True,
+                            text=True, env=_env(), cwd=ROOT)
+    assert silent.returncode == 0 and silent.stdout == "" and silent.stderr == ""
 
 
 def test_quiet_still_prints_errors(tmp_path):

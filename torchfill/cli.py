@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             status = args.run(args)
-        for w in caught if not getattr(args, "quiet", False) else ():    # -q: errors only
+        for w in caught if getattr(args, "quiet", 0) < 2 else ():      # -qq: errors only
             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning)):
                 print(f"torchfill: warning: {_one_line(w.message)}", file=sys.stderr)
         return status
@@ -173,7 +173,7 @@ def _cmd_fill_batch(args) -> int:
             for src, dst in zip(inputs, batch.outputs(inputs, Path(args.out_dir)))]
     order = {job.input: i for i, job in enumerate(jobs)}
     rows = []
-    with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar:
+    with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=bool(args.quiet) or None) as bar:
         for row in batch.run(jobs, workers=args.workers, ray_address=args.ray):
             if row["error"]:
                 bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
@@ -435,8 +435,8 @@ def _parser() -> argparse.ArgumentParser:
                         "tucker_tnn); observed samples are written as read either way")
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="print nothing but errors (no progress, summary or warnings)")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
@@ -449,8 +449,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("filled", metavar="FILLED")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="HTML report (default: FILLED with suffix .qc.html)")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="print nothing but errors (no progress, summary or warnings)")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
@@ -470,8 +470,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="print nothing but errors (no progress, summary or warnings)")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
