@@ -10,8 +10,8 @@ How (observed data only, never the ground truth of the gaps):
    extrapolation.
 2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
    that fails on the recording (e.g. ``pca_train`` without enough complete frames, ``rigid`` or
-   ``pma`` on 2-D keypoints) is dropped. With ``constraints`` (what ``fill()`` passes by default)
-   each fill first goes through fill()'s constraints post-step, so candidates are scored on what
+   ``pma`` on 2-D keypoints) is dropped. Given a ``post`` step as fit data (``fill()`` passes its
+   constraints post-step when they are on) each fill first goes through it, so candidates are scored on what
    fill() will return; held-out samples that rigid donors fill (the same for every candidate) do
    not count in the choice.
 3. Each gap (real or held out) gets a kind: at a trial end or inside, its length (``<= 20``,
@@ -52,13 +52,22 @@ from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
 Tensor = torch.Tensor
 
-#: Candidates tried by default, in this order; names not registered (yet) are skipped. ``li``
-#: and ``lgrnn`` (Tits et al.'s local models, each < 1 s on 1200 x 41) were the best single
-#: method on 8 of the 19 cases of scripts/mask_suite.py (experiments/results/pma_reference.md);
-#: ``rigid`` is left out when the constraints run (their rigid donors are its fill; the rest is
-#: pchip's).
-DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
-                      "rigid", "li", "lgrnn", "pma", "pca_gloersen")
+#: Candidates tried by default, in this order; names not registered (yet) are skipped: the
+#: temporal interpolants for short gaps, the spatial models of Tits et al. 2018 (``li``,
+#: ``lgrnn``, ``glr`` and their average ``pma``) and Gløersen PCA, which place a marker from the
+#: markers seen in the same frame (real gaps sit mostly at trial ends, where nothing else works),
+#: and ``tucker_tnn`` for long interior gaps and dense occlusion. ``rigid`` is left out when a
+#: post-step runs (its rigid donors are that fill). ``svt``, ``cp`` and ``pca_train`` were never
+#: the best single method on the real-gap-pattern suite and cost a third of the fits' time
+#: (``cp`` won one still 80-frame window of the mask suite by 0.02 mm); pass ``candidates=`` to
+#: try them.
+DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "pca_gloersen",
+                      "tucker_tnn")
+#: Candidates that fill only some samples (NaN elsewhere), with the parameters that make them so:
+#: ``rigid`` where three segment-mates are seen. The samples such a candidate fills form gap
+#: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
+#: has no weight.
+PARTIAL = {"rigid": {"fallback": False}}
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -107,8 +116,11 @@ def gap_kind(L: Tensor, edge: Tensor, fast: Tensor) -> Tensor:
 
 
 def kind_name(k: int) -> str:
+    n_base = 4 * (len(LENGTH_EDGES) + 1)
+    partial, k = divmod(k, n_base)
     length = (LENGTH_EDGES + ("inf",))[k // 4]
-    return f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
+    return (f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
+            f"{',segment' if partial else ''}")
 
 
 def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
@@ -130,9 +142,11 @@ def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
 
 
 def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, combine: str,
-                 keep_ratio: float, prior: float = PRIOR_GAPS) -> Tensor:
+                 keep_ratio: float, prior: float = PRIOR_GAPS,
+                 allowed: Tensor | None = None) -> Tensor:
     """Candidate weights per kind, (n_kinds, C), from held-out squared errors ``err2`` (C, N) of
-    samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,).
+    samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,); a candidate
+    takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere).
 
     A kind's mean squared errors are shrunk towards those of all gaps of its trial-end status,
     and those towards all gaps, each with the weight of ``prior`` gaps against the kind's own
@@ -141,10 +155,12 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
     a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method)."""
     def mse(sel: Tensor, parent: Tensor) -> Tensor:
         n = int(torch.unique(gap_ids[sel]).numel()) if bool(sel.any()) else 0
-        own = err2[:, sel].mean(dim=1) if n else parent
+        own = err2[:, sel].nanmean(dim=1) if n else parent     # NaN: a partial candidate
+                                                                # that fills none of them
         return (n * own + prior * parent) / (n + prior)
 
-    def weights(m: Tensor) -> Tensor:
+    def weights(m: Tensor, ok: Tensor) -> Tensor:
+        m = torch.where(torch.isnan(m) | ~ok, torch.inf, m)
         if combine == "select":
             w = torch.zeros_like(m)
             w[int(m.argmin())] = 1.0
@@ -152,11 +168,13 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
         w = torch.where(m <= keep_ratio * m.min(), 1.0 / m.clamp(min=1e-300), 0.0)
         return w / w.sum()
 
-    every = err2.mean(dim=1)
+    every = err2.nanmean(dim=1)
     by_edge = [mse(kinds % 2 == e, every) for e in (0, 1)]
     W = torch.empty(n_kinds, err2.shape[0], dtype=err2.dtype, device=err2.device)
+    if allowed is None:
+        allowed = torch.ones(W.shape, dtype=torch.bool, device=W.device)
     for k in range(n_kinds):
-        W[k] = weights(mse(kinds == k, by_edge[k % 2]))
+        W[k] = weights(mse(kinds == k, by_edge[k % 2]), allowed[k])
     return W
 
 
@@ -218,7 +236,8 @@ class Auto(Solver):
 
     name = "auto"
     iterative = False
-    fit_data = ("training",)
+    spatial = True
+    fit_data = ("training", "post")
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "candidates": Param(None, (tuple, list), allow_none=True,
@@ -231,12 +250,6 @@ class Auto(Solver):
         "refit": Param(True, bool,
                        doc="refit the candidates that carry weight on all observed samples for the "
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
-        "constraints": Param(False, bool,
-                             doc="score and average the candidates' fills after fill()'s "
-                                 "constraints post-step (torchfill.constraints, no extrapolation "
-                                 "limit), as fill() returns them; fill() passes its own "
-                                 "constraints= here (default True there). Samples that rigid "
-                                 "donors fill do not weigh in the choice; the error model knows them"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -258,8 +271,7 @@ class Auto(Solver):
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
             return list(self.candidates)
-        known = set(available()) - ({"rigid"} if self.constraints else set())
-        return [name for name in DEFAULT_CANDIDATES if name in known]
+        return [name for name in DEFAULT_CANDIDATES if name in available()]
 
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
@@ -284,21 +296,30 @@ class Auto(Solver):
         d, L, edge = run_geometry(fit_missing)
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         motion = gap_motion(fit_missing, Xt)
-        kinds = gap_kind(L, edge, motion > FAST)
-        n_kinds = 4 * (len(LENGTH_EDGES) + 1)
-        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N) per coordinate
+        base = gap_kind(L, edge, motion > FAST)
+        n_base = 4 * (len(LENGTH_EDGES) + 1)
+        n_kinds = 2 * n_base                        # x whether a partial candidate fills it
+        kinds = base + n_base * self._partial(names, fills)
+        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
+        allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
+        allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
         if int(decide.sum()) == 0:                                  # nothing to choose on
-            W = torch.full((n_kinds, len(names)), 1.0 / len(names), dtype=fills.dtype,
-                           device=fills.device)
+            W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         else:
             W = kind_weights(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide],
-                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio)
+                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio,
+                             allowed=allowed)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
             fills, real_donor = self._refit(names, fills, w, ~seen)
             donor = torch.where(V, donor, real_donor)
-        mean = (w[..., None] * fills).sum(dim=0)
+            kinds = torch.where(V, kinds, base + n_base * self._partial(names, fills))
+            w = W[kinds].permute(2, 0, 1)
+        w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
+        w = w / w.sum(dim=0, keepdim=True).clamp(min=1e-300)
+        mean = (w[..., None] * torch.nan_to_num(fills)).sum(dim=0)
+        fills = torch.where(torch.isfinite(fills), fills, mean)     # no say where it has none
         spread2 = self._spread2(fills, mean, err2)
         share = fit_missing.to(fills.dtype).mean(dim=1, keepdim=True).expand_as(spread2)
         lin = ops.interp_linear(Xt.reshape(Xt.shape[0], -1),                # V hidden too
@@ -309,16 +330,27 @@ class Auto(Solver):
         both = ~fit_missing[1:] & ~fit_missing[:-1]
         speed2 = (torch.where(both, step, 0.0).sum(dim=0) / both.sum(dim=0).clamp(min=1)
                   ).expand_as(spread2)
-        self.scores_ = {n: float(e.mean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
+        self.scores_ = {n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
         self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
                          for k in range(n_kinds)}
-        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion, donor),
+        segment = kinds >= n_base                   # a partial (segment) candidate fills it
+        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion,
+                                donor | segment),
                       ((mean - Xt) ** 2).mean(dim=2))
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)
         return {"delta": 0.0, "candidates": float(len(names))}
 
     # -- pieces ----------------------------------------------------------------------------
+    @staticmethod
+    def _partial(names: list[str], fills: Tensor) -> Tensor:
+        """(T, J) samples a partial candidate (see ``PARTIAL``) fills, as 0/1."""
+        got = torch.zeros(fills.shape[1:3], dtype=torch.long, device=fills.device)
+        for c, name in enumerate(names):
+            if name in PARTIAL:
+                got = got | torch.isfinite(fills[c]).all(dim=-1).long()
+        return got
+
     def _holdout(self, seen: Tensor) -> Tensor:
         """Held-out (T, J) samples: shifted gap pattern plus mirrored trial-end gaps."""
         Omega3 = seen[..., None]
@@ -333,14 +365,18 @@ class Auto(Solver):
         """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3)."""
         T, J = fit_missing.shape
         X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
-        params = {"seed": self.seed, **(self.candidate_params or {}).get(name, {})}
+        params = {"seed": self.seed, **PARTIAL.get(name, {}),
+                  **(self.candidate_params or {}).get(name, {})}
         solver = get_solver(name, **params)
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
                 if k in solver.fit_data}                  # training data in the fit's units
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)
-        if not bool(torch.isfinite(out).all()):
+        done = torch.isfinite(out).all(dim=-1)
+        if name in PARTIAL and bool(done[fit_missing].any()):
+            return out.to(self.M_.dtype)                    # NaN where it does not fill
+        if not bool(done.all()):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
 
@@ -394,45 +430,28 @@ class Auto(Solver):
                 done.remove(c)
             else:
                 fills[c] = torch.where(gaps[..., None], out, fills[c])
-        refits, donor = self._constrain(fills[done], gaps)
+        Xt = self.M_.reshape(fills.shape[1:])
+        seen = torch.where(gaps[..., None], fills[done], Xt)   # held-out samples as observed
+        refits, donor = self._constrain(seen, gaps)
         fills[done] = torch.where(gaps[..., None], refits, fills[done])
         return fills, donor
 
     def _constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
-        """Each candidate's fill (C, T, J, D) after fill()'s constraints post-step, with the
-        ``missing`` (T, J) samples free (no extrapolation limit), and the (T, J) samples rigid
-        donors fill (the same for every candidate: they depend on the observed samples only).
-        Unchanged, with no donors, when ``constraints`` is off."""
-        donor = torch.zeros_like(missing)
-        if not self.constraints or fills.shape[0] == 0:
-            return fills, donor
-        from ..constraints import constrain, rigid_donors      # fill()'s post-step, one home
-        from .rigid import rigid_pairs
-
-        miss = missing.cpu().numpy()
-        pairs = donors = None
-        if fills.shape[-1] == 3:       # the same rigid pairs and donors for every candidate
-            X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
-            pairs = rigid_pairs(X, ~missing.cpu())
-            donors = rigid_donors(X.numpy(), ~miss, pairs)
-        def one(F: Tensor):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
-        done = list(ops.thread_map(one, fills))            # numpy lets go of the GIL for most of it
-        out = [torch.from_numpy(G) for G, _ in done]
-        report = done[-1][1]
-        if report.rigid_done is not None:
-            donor = torch.as_tensor(report.rigid_done, device=missing.device)
-        out = torch.stack(out).to(device=fills.device, dtype=fills.dtype)
-        return torch.where(torch.isfinite(out), out, fills), donor
+        """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data
+        (``fill()`` passes :func:`torchfill.constraints.constrain_candidates` when its constraints
+        are on), and the (T, J) samples that rigid donors fill there. Unchanged, with no donors,
+        without a post-step."""
+        post = self.fit_data_.get("post")
+        if post is None or fills.shape[0] == 0:
+            return fills, torch.zeros_like(missing)
+        return post(fills, missing)
 
     @staticmethod
     def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
         """(T, J) disagreement of all candidates with the combined fill, each weighted by its
         inverse held-out MSE (so a poor candidate counts little)."""
         if err2.numel():
-            v = 1.0 / err2.mean(dim=1).clamp(min=1e-12)
+            v = 1.0 / torch.nan_to_num(err2.nanmean(dim=1), nan=torch.inf).clamp(min=1e-12)
         else:
             v = torch.ones(fills.shape[0], dtype=fills.dtype, device=fills.device)
         v = (v / v.sum())[:, None, None, None]
@@ -456,14 +475,3 @@ class Auto(Solver):
         std[gaps] = var.sqrt() * self.sigma_
         self.std_ = std
         self.error_model_ = None if int(V.sum()) < 10 else (beta, log_scale)
-
-
-def holdout_std(method: str, params: dict, X: Tensor, missing: Tensor, seed: int = 0,
-                constraints: bool = False, **data) -> Tensor:
-    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
-    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
-    ``data``: the method's fit data (``training=``); ``constraints``: as fill()'s."""
-    solver = Auto(candidates=(method,), candidate_params={method: dict(params)}, seed=seed,
-                  constraints=constraints)
-    solver.fit(X, missing, **data)
-    return solver.std_
