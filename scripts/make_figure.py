@@ -61,7 +61,7 @@ def main() -> int:
         ax.set_xlabel("time (s)", fontsize=8)
     axes[0].legend(fontsize=7, frameon=False, loc="best")
     name = Path(args.recording).name
-    fig.suptitle(f"{name}: marker {seq.labels[j]}, a real {b - a}-frame gap, default fill",
+    fig.suptitle(f"{name}: marker {seq.labels[j]}, a real {b - a}-frame gap, default fill ({torchfill.default_method()})",
                  fontsize=9)
     fig.tight_layout()
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)
