@@ -1,7 +1,9 @@
 """The documentation stays true: every block marked ``bash example`` or ``python example`` in the
 README and docs/ runs (in a scratch folder where ``trial.c3d`` is the embedded sample with
-simulated gaps, and ``torchfill`` is this checkout's CLI), every relative link resolves, the
-generated pages are up to date, and the README stays short and speaks of the software only."""
+simulated gaps, and ``torchfill`` is this checkout's CLI; tags after ``example``: ``needs-data``
+skips without the shared recordings, ``needs-interop`` without pandas and xarray), every relative
+link resolves, the generated pages are up to date, and the README stays short and speaks of the
+software only."""
 from __future__ import annotations
 
 import os
@@ -61,6 +63,9 @@ def shim(tmp_path_factory) -> Path:
 def test_example_runs(language, tags, body, trial, shim, tmp_path):
     if "needs-data" in tags and not data_dir(ROOT).is_dir():
         pytest.skip("needs the shared recordings")
+    if "needs-interop" in tags:                     # the `interop` extra: pandas, xarray
+        pytest.importorskip("pandas")
+        pytest.importorskip("xarray")
     work = tmp_path / "work"
     work.mkdir()
     (work / "trial.c3d").write_bytes(trial.read_bytes())
