@@ -1,4 +1,6 @@
 """Round trips to the ecosystem's data types keep values (NaN too), labels, rate and units."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,52 @@ def test_fill_through_pandas():
     seen = df.notna().to_numpy()
     assert np.array_equal(out.to_numpy()[seen], df.to_numpy()[seen])
     assert out.notna().to_numpy().all()
+
+
+def _opensim_trc(path):
+    """A small reader of the TRC layout as OpenSim's TRCFileAdapter and Pose2Sim expect it,
+    independent of torchfill.io: line 1 ``PathFileType 4 (X/Y/Z) name``; line 2 the header keys,
+    line 3 their values; line 4 ``Frame# Time`` and one label every third column; line 5
+    ``X1 Y1 Z1 ...``; then (after an optional blank line) one tab-separated row per frame, an empty
+    cell for a missing coordinate."""
+    lines = Path(path).read_text().split("\n")
+    assert lines[0].split("\t")[:2] == ["PathFileType", "4"]
+    header = dict(zip(lines[1].split("\t"), lines[2].split("\t")))
+    n_frames, n_markers = int(header["NumFrames"]), int(header["NumMarkers"])
+    names = lines[3].split("\t")
+    assert names[:2] == ["Frame#", "Time"]
+    labels = [names[2 + 3 * j] for j in range(n_markers)]
+    assert all(n == "" for j in range(n_markers) for n in names[3 + 3 * j: 5 + 3 * j])
+    axes = lines[4].split("\t")[2: 2 + 3 * n_markers]
+    assert axes == [f"{a}{j + 1}" for j in range(n_markers) for a in "XYZ"]
+    rows = [line.split("\t") for line in lines[5:] if line.strip()]
+    assert len(rows) == n_frames
+    values = np.array([[float(c) if c.strip() else np.nan for c in r[2: 2 + 3 * n_markers]]
+                       + [np.nan] * (2 + 3 * n_markers - len(r)) for r in rows])
+    time = np.array([float(r[1]) for r in rows])
+    return (values.reshape(n_frames, n_markers, 3), labels, float(header["DataRate"]),
+            header["Units"], time)
+
+
+def test_trc_as_opensim_reads_it(tmp_path):
+    """A TRC written by torchfill (fresh, with gaps) reads back through the OpenSim layout with
+    its labels, rate, units, time column and values, missing samples as empty cells."""
+    seq = _gappy()
+    seq.units = "mm"
+    path = tmp_path / "walk.trc"
+    torchfill.write(seq, path)
+    points, labels, rate, units, time = _opensim_trc(path)
+    assert labels == seq.labels and rate == seq.rate and units == "mm"
+    assert np.allclose(time, np.arange(seq.n_frames) / seq.rate, atol=1e-6)
+    assert np.array_equal(np.isnan(points), np.isnan(seq.points))
+    assert np.allclose(points, seq.points, rtol=1e-6, equal_nan=True)
+
+
+def test_opensim_layout_reader_agrees_on_an_opensim_file(recording):
+    """The layout reader above reads OpenSim's own example TRC as torchfill does (so the check
+    of torchfill's TRC is made with a reader that OpenSim's files satisfy)."""
+    path = recording("osim_gait2392_subject01_walk1.trc")
+    points, labels, rate, units, _ = _opensim_trc(path)
+    seq = torchfill.read(path)
+    assert labels == seq.labels and rate == seq.rate and units == seq.units
+    assert np.allclose(points, seq.points, equal_nan=True)
