@@ -131,7 +131,7 @@ def methods_page() -> str:
         cli.main(["methods", "-v"])
     return "\n".join(["# Methods and their hyperparameters", "", GENERATED, "",
                       "`torchfill methods -v`: every registered method, its hyperparameters, "
-                      "defaults and why. Set them with `-p NAME=VALUE` on the command line or as "
+                      "defaults and why. Set them with `-p NAME=VALUE` on the command line, "
                       "keyword arguments of `torchfill.fill` / `torchfill.get_solver`.", "",
                       "```text", buf.getvalue().rstrip(), "```", ""])
 

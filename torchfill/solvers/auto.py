@@ -63,6 +63,12 @@ Tensor = torch.Tensor
 #: try them.
 DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "pca_gloersen",
                       "tucker_tnn")
+#: Default candidates that only run when interior gaps longer than ``LENGTH_EDGES[0]`` frames
+#: hold at least ``INTERIOR_SHARE`` of the missing samples: a low-rank model in time extrapolates
+#: poorly at trial ends, where most real gaps are, and it is most of the fits' time (41 % of a
+#: real-gap-pattern case's profile).
+INTERIOR = ("tucker_tnn",)
+INTERIOR_SHARE = 0.25
 #: Candidates that fill only some samples (NaN elsewhere), with the parameters that make them so:
 #: ``rigid`` where three segment-mates are seen. The samples such a candidate fills form gap
 #: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
@@ -79,6 +85,17 @@ FAST = 3.0
 #: A kind's held-out errors count as much as their number of held-out gaps against this many
 #: gaps of its parent (all gaps at a trial end / inside, then all gaps): see :func:`kind_weights`.
 PRIOR_GAPS = 10.0
+
+
+def interior_share(Omega: Tensor) -> float:
+    """Share of the missing samples (a sample: any coordinate of a marker in a frame) that lie in
+    gaps longer than ``LENGTH_EDGES[0]`` frames touching neither trial end."""
+    missing = ~Omega.reshape(Omega.shape[0], Omega.shape[1], -1).all(dim=2)
+    n = int(missing.sum())
+    if n == 0:
+        return 0.0
+    _, L, edge = run_geometry(missing)
+    return float((missing & ~edge & (L > LENGTH_EDGES[0])).sum()) / n
 
 
 def run_bounds(missing: Tensor) -> tuple[Tensor, Tensor]:
@@ -271,7 +288,10 @@ class Auto(Solver):
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
             return list(self.candidates)
-        return [name for name in DEFAULT_CANDIDATES if name in available()]
+        names = [name for name in DEFAULT_CANDIDATES if name in available()]
+        if hasattr(self, "Omega_") and interior_share(self.Omega_) < INTERIOR_SHARE:
+            names = [name for name in names if name not in INTERIOR]
+        return names
 
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
