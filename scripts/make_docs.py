@@ -132,7 +132,8 @@ def methods_page() -> str:
     return "\n".join(["# Methods and their hyperparameters", "", GENERATED, "",
                       "`torchfill methods -v`: every registered method, its hyperparameters, "
                       "defaults and why. Set them with `-p NAME=VALUE` on the command line, "
-                      "keyword arguments of `torchfill.fill` / `torchfill.get_solver`.", "",
+                      "`params={...}` of `torchfill.fill` or keyword arguments of "
+                      "`torchfill.get_solver`.", "",
                       "```text", buf.getvalue().rstrip(), "```", ""])
 
 
