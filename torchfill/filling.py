@@ -135,6 +135,12 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
     With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
     MarkerSequence).
     """
+    prior = _previous_fill(data, mask)
+    if prior is not None:
+        return _refill(data, prior, method, mask=mask, max_gap=max_gap, window=window,
+                       progress=progress, constraints=constraints, extrapolate=extrapolate,
+                       return_std=return_std, dtype=dtype, workers=workers, segments=segments,
+                       params=params, training=training, **legacy)
     method = default_method() if method is None else method
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
@@ -297,6 +303,40 @@ def _fill_batch(data, mask, again):
     if isinstance(done[0], tuple):
         return tuple(stack([d[k] for d in done]) for k in range(len(done[0])))
     return stack(done)
+
+
+def _previous_fill(data, mask) -> np.ndarray | None:
+    """``(T, J)`` samples of a MarkerSequence that an earlier fill made (``meta["filled"]``: set
+    by ``fill()``, and by the readers from the file's own mark), still finite and not in ``mask``;
+    None when there are none."""
+    filled = data.meta.get("filled") if isinstance(data, MarkerSequence) else None
+    if filled is None or np.shape(filled) != data.points.shape[:2]:
+        return None
+    prior = np.asarray(filled, dtype=bool) & np.isfinite(data.points).all(axis=2)
+    if mask is not None and np.shape(mask) == prior.shape:
+        prior &= ~np.asarray(mask, dtype=bool)
+    return prior if prior.any() else None
+
+
+def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool, **kwargs):
+    """Fill ``data`` as if its earlier fills (``prior``) were gaps, then put those samples back
+    as they were: they are kept, but never fitted to nor extrapolated from, so that filling a
+    filled recording again gives the same recording (the method sees the same observed samples
+    and leaves the same samples unfilled)."""
+    bare = data.with_points(np.where(prior[..., None], np.nan, data.points))
+    bare.meta.pop("filled", None)
+    bare.meta.pop("std", None)
+    result = fill(bare, method, return_std=return_std, **kwargs)
+    out, std = result if return_std else (result, None)
+    out.points[prior] = data.points[prior]
+    out.meta["filled"] = out.meta["filled"] | prior
+    if std is None:
+        return out
+    old = data.meta.get("std")
+    if old is not None and np.shape(old) == prior.shape:
+        std[prior] = np.asarray(old)[prior]
+    out.meta["std"] = std
+    return out, std
 
 
 def _work_dtype(dtype, solver) -> torch.dtype | None:
