@@ -42,7 +42,7 @@ def _main(argv: list[str] | None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             status = args.run(args)
-        for w in caught:
+        for w in caught if getattr(args, "quiet", 0) < 2 else ():      # -qq: errors only
             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning)):
                 print(f"torchfill: warning: {_one_line(w.message)}", file=sys.stderr)
         return status
@@ -162,7 +162,6 @@ def _cmd_fill(args) -> int:
             filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
                                     return_std=bool(args.std), **options)
         filled = filled[0] if args.std else filled
-        _clear_progress(args)
         plan.write_sequence(filled, out_path, backup=backup)
         written = [out_path]
         if args.std:
@@ -173,8 +172,9 @@ def _cmd_fill(args) -> int:
             written.append(args.report)
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
-    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
-               f"({info['n_iter']} iterations); {left} left unfilled -> "
+    steps = f" ({info['n_iter']} iterations)" if info["n_iter"] > info["windows"] else ""
+    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s{steps}; "
+               f"{left} left unfilled -> "
                + ", ".join(map(str, written))
                + (f" (original kept as {backup})" if backup else ""))
     return 0
@@ -422,7 +422,8 @@ def _cmd_fill_batch(args) -> int:
     rows = []
     started = time.time()
     try:
-        with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar, \
+        with tqdm(total=len(jobs), unit="file", file=sys.stderr,
+                  disable=bool(args.quiet) or None) as bar, \
                 closing(batch.run(jobs, workers=args.workers, ray_address=args.ray)) as results:
             for row in results:
                 if row["error"]:
@@ -492,7 +493,6 @@ def _cmd_evaluate(args) -> int:
         with _naming(args.input):   # scored everywhere: no extrapolation limit
             filled = torchfill.fill(incomplete, method, progress=_progress(args),
                                     extrapolate=None, params=params)
-        _clear_progress(args)
         info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
         rows.append({"method": method, **{k: v * factor for k, v in errors.items()},
@@ -693,25 +693,10 @@ def _say(args, text: str) -> None:
         print(text, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
 
 
-def _shows_progress(args) -> bool:
+def _progress(args) -> bool:
+    """A fill's bar (percent, time left; see torchfill.progress) on a terminal, unless -q. Not
+    on a terminal the command's own summary line is the only report."""
     return not getattr(args, "quiet", False) and sys.stderr.isatty()
-
-
-def _progress(args):
-    if not _shows_progress(args):
-        return None
-    start = time.perf_counter()
-
-    def show(info: dict) -> None:
-        extra = "  ".join(f"{k}={v:.3g}" for k, v in info.items() if k != "iter")
-        print(f"\r  iter {int(info['iter']):>5}  {time.perf_counter() - start:6.1f} s  {extra}"[:100],
-              end="", file=sys.stderr, flush=True)
-    return show
-
-
-def _clear_progress(args) -> None:
-    if _shows_progress(args):
-        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -763,7 +748,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="which markers move together: a YAML file as 'torchfill info IN "
                         "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "
                         "recording); default: the tables when the labels fit, else the data")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
@@ -776,7 +762,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("filled", metavar="FILLED")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="HTML report (default: FILLED with suffix .qc.html)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
@@ -796,7 +783,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)
