@@ -1,215 +1,343 @@
-"""Quality control of a fill on real gaps: which filled gaps to trust (``torchfill qc``).
+"""Quality control of a fill: a verdict per gap -- ``ok``, ``check`` or ``reject`` -- with its
+reasons (``torchfill qc``, ``fill --report``).
 
-For every gap of every marker in the input: its frames, whether it was interpolated (observed on
-both sides) or extrapolated (touching a trial end), whether rigid donors (>= 3 rigid partners
-observed) were available, the largest deviation from the rigid partners' observed distances, the
-velocity jump at its edges, its largest one-frame step against the recording's teleport limit,
-its samples outside the observed volume and those left unfilled; then a one-line verdict,
-``ok`` or ``check`` with the reasons. The HTML report adds plots of the worst gaps (observed,
-filled and partner distance), embedded, so the page is self-contained.
+Every gap of every marker of the input (a run of missing frames of a marker seen elsewhere) is
+judged on the fill's output and, when given, the fill's own error estimate ``std`` (T, J) (the
+per-coordinate std of ``fill(..., return_std=True)``). The tests, each a pure function of
+(input, fill, std) -- the truth is never seen:
 
-Thresholds, all from the recording's own observed samples (no units): teleport = a step longer
-than 1.5 x the 99.9th-percentile observed step; edge jump = a velocity change larger than 1.5 x
-the 99.9th-percentile observed one (frame-to-frame change of a step); rigid deviation = more than
-3 x the rigid tolerance (``tol x scale``, about 9 mm on an adult body); long = more than
-``LONG_SECONDS``.
+- **estimated error**: ``est_rmse`` = sqrt(D x mean(std^2)) over the gap's filled frames, the
+  expected RMS of its D-dimensional error; ``check`` above ``EST_CHECK_MM`` when it is also above
+  ``EST_RELATIVE`` x the recording's median gap estimate, ``reject`` above ``EST_REJECT_MM``;
+- **step at the cap**: a one-frame step inside or at the edges of the gap at or above
+  ``STEP_AT_CAP`` x the recording's step cap (the constraints shorten longer steps to just below
+  the cap, so a fill that needed shortening ends *at* it; above it means it was not constrained);
+- **rigid partner**: the largest deviation of the distance to a rigid partner from that pair's
+  median, over the pair's own observed spread (the 95th percentile of its observed deviations,
+  at least the rigidity tolerance); ``check`` above ``RIGID_CHECK`` spreads, ``reject`` above
+  ``RIGID_REJECT``;
+- **volume**: filled samples at or beyond the observed volume widened by the constraints' margin
+  (the constraints clamp onto that bound);
+- **extrapolated in time**: filled frames of a gap touching a trial end without spatial support
+  (fewer than 3 rigid partners observed in that frame), ``check`` when more than
+  ``EXTRAPOLATED_SECONDS``;
+- **blackout**: frames in which no marker was observed (interpolated in time);
+- frames left unfilled are reported; a gap left wholly unfilled is ``reject``.
+
+Thresholds in mm are converted to the file's units (m, cm, mm); for image keypoints (px) by the
+body's size: the recording's median pairwise keypoint distance against ``BODY_SCALE_MM``. They
+are constants calibrated on gaps with known truth (``scripts/calibrate_qc.py``: the tennis file
+with its clean twin and real gap masks laid onto complete recordings), never on the gaps judged.
 """
 from __future__ import annotations
 
-import base64
-import html
-import io
-from dataclasses import dataclass
+import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 
 from . import metrics
+from .constraints import STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN
 from .solvers.rigid import rigid_fill, rigid_pairs
 
-#: Gaps longer than this many seconds are flagged ``long``.
-LONG_SECONDS = 2.0
+#: Estimated RMS error (mm) above which a gap is ``check`` (when also above ``EST_RELATIVE`` x the
+#: recording's median gap estimate).
+EST_CHECK_MM = 10.0
+#: ... and above which it is ``check`` whatever the other gaps' estimates.
+EST_RELATIVE = 3.0
+#: Estimated RMS error (mm) above which a gap is ``reject``.
+EST_REJECT_MM = 30.0
+#: A step at or above this share of the cap counts as "at the cap".
+STEP_AT_CAP = 0.99
+#: Rigid-partner deviation, in the pair's own observed spreads: ``check`` / ``reject`` above.
+RIGID_CHECK = 3.0
+RIGID_REJECT = 10.0
+#: Seconds of time-only extrapolation at a trial end above which a gap is ``check``.
+EXTRAPOLATED_SECONDS = 0.0
+#: Median pairwise marker distance of an adult full-body marker set (mm; HDM05, CMU and OpenSim
+#: recordings: 630-690): converts mm thresholds to pixels for image keypoints.
+BODY_SCALE_MM = 650.0
+#: Spatial support: at least this many rigid partners observed in the frame.
+MIN_PARTNERS = 3
+
+VERDICTS = ("ok", "check", "reject")
+_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001}
 
 
-@dataclass
-class Limits:
-    step: float
-    accel: float
-    rigid: float
-    bounds: tuple
+@dataclass(frozen=True)
+class Thresholds:
+    """A recording's thresholds, in its own units (``units``); ``per_mm`` converts from mm."""
+
+    units: str
+    per_mm: float
+    est_check: float        # absolute part of the estimated-error test
+    est_relative: float     # EST_RELATIVE x the median gap estimate (NaN without std)
+    est_reject: float
+    step_cap: float         # the recording's step cap (constraints)
+    step_at: float          # STEP_AT_CAP x step_cap
+    rigid_check: float      # in spreads
+    rigid_reject: float
+    volume: tuple           # (lo, hi) per axis
+    extrapolated_s: float
+
+    def lines(self) -> list[str]:
+        """The thresholds as text, in the file's units."""
+        u = self.units
+        est = (f"estimated RMS error > {self.est_check:.4g} {u} and > {EST_RELATIVE:g} x the "
+               f"median gap estimate ({self.est_relative:.4g} {u}): check; > "
+               f"{self.est_reject:.4g} {u}: reject")
+        return [est,
+                f"one-frame step >= {self.step_at:.4g} {u} ({STEP_AT_CAP:g} x the step cap "
+                f"{self.step_cap:.4g} {u}): check; above the cap: reject",
+                f"rigid-partner distance off by > {self.rigid_check:g} x the pair's observed "
+                f"spread: check; > {self.rigid_reject:g} x: reject",
+                f"filled samples at or beyond the observed volume (+{VOLUME_MARGIN:.0%} margin): "
+                "check",
+                f"trial-end frames filled without spatial support (< {MIN_PARTNERS} rigid partners "
+                f"seen) for > {self.extrapolated_s:g} s: check; wholly unfilled gap: reject"]
 
 
-def limits(points, observed, pairs) -> Limits:
-    """Teleport, edge-jump, rigid-deviation and volume thresholds of a recording."""
-    X = np.asarray(points, dtype=np.float64)
-    both = observed[2:] & observed[1:-1] & observed[:-2]
-    acc = np.linalg.norm(X[2:] - 2 * X[1:-1] + X[:-2], axis=2)[both]
-    return Limits(step=metrics.step_limit(X, observed),
-                  accel=1.5 * float(np.percentile(acc, 99.9)) if acc.size else np.inf,
-                  rigid=3 * 0.005 * pairs.scale, bounds=metrics.volume(X, observed))
+def per_mm(units: str, dims: int = 3, scale: float | None = None) -> float:
+    """File units per mm: m 0.001, cm 0.1, mm 1; px (``dims`` 2) the body's ``scale`` (median
+    pairwise keypoint distance) over ``BODY_SCALE_MM``."""
+    u = (units or "mm").strip().lower()
+    if u in _PER_MM:
+        return _PER_MM[u]
+    if dims == 2 or u in ("px", "pixel", "pixels"):
+        return (scale / BODY_SCALE_MM) if scale and np.isfinite(scale) else 1.0
+    return 1.0
 
 
-def gap_table(points, filled, rate: float | None = None, names=None, std=None) -> list[dict]:
-    """One row per gap of ``points`` (the input), judged on ``filled`` (the fill's output).
-    ``std`` (T, J), optional: the fill's estimated error std (``fill(..., return_std=True)``); each
-    row then has its RMS over the gap as ``est_std``."""
+def thresholds(units: str, per: float, step_cap: float, bounds, median_est: float) -> Thresholds:
+    """The constants of this module in a recording's units."""
+    return Thresholds(units=units, per_mm=per, est_check=EST_CHECK_MM * per,
+                      est_relative=EST_RELATIVE * median_est, est_reject=EST_REJECT_MM * per,
+                      step_cap=step_cap, step_at=STEP_AT_CAP * step_cap,
+                      rigid_check=RIGID_CHECK, rigid_reject=RIGID_REJECT, volume=bounds,
+                      extrapolated_s=EXTRAPOLATED_SECONDS)
+
+
+def est_rmse(std, j: int, a: int, b: int, dims: int) -> float:
+    """sqrt(D x mean std^2) over the gap's frames where ``std`` is finite (NaN: none)."""
+    if std is None:
+        return math.nan
+    s = np.asarray(std, dtype=np.float64)[a:b, j]
+    s = s[np.isfinite(s)]
+    return float(np.sqrt(dims * np.mean(s ** 2))) if s.size else math.nan
+
+
+def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
+    """``(verdict, reasons)`` of one gap row (see :func:`gap_table`) under ``th``."""
+    u, reasons, level = th.units, [], 0
+
+    def flag(lvl: int, text: str) -> None:
+        nonlocal level
+        level = max(level, lvl)
+        reasons.append(text)
+
+    if row["filled_frames"] == 0:
+        flag(2, "left unfilled")
+        return VERDICTS[level], reasons
+    est = row["est_rmse"]
+    if np.isfinite(est):
+        if est > th.est_reject:
+            flag(2, f"estimated error {est:.3g} {u} > {th.est_reject:.3g} {u}")
+        elif est > th.est_check and not est <= th.est_relative:
+            flag(1, f"estimated error {est:.3g} {u} > {th.est_check:.3g} {u} and > "
+                    f"{EST_RELATIVE:g} x median")
+    step = row["max_step"]
+    if np.isfinite(step) and step > th.step_cap * (1 + 1e-6):
+        flag(2, f"step {step:.3g} {u} above the cap {th.step_cap:.3g} {u}")
+    elif np.isfinite(step) and step >= th.step_at:
+        flag(1, f"step {step:.3g} {u} at the cap {th.step_cap:.3g} {u}")
+    ratio = row["rigid_ratio"]
+    if np.isfinite(ratio) and ratio > th.rigid_check:
+        flag(2 if ratio > th.rigid_reject else 1,
+             f"distance to {row['rigid_partner']} off by {row['rigid_dev']:.3g} {u} = "
+             f"{ratio:.1f} x its spread (> {th.rigid_reject if ratio > th.rigid_reject else th.rigid_check:g})")
+    if row["outside"]:
+        flag(1, f"{row['outside']} sample(s) at or beyond the observed volume")
+    if row["extrapolated"] and row["extrapolated_s"] > th.extrapolated_s:
+        flag(1, f"{row['extrapolated']} trial-end frame(s) extrapolated in time "
+                f"(no spatial support, > {th.extrapolated_s:g} s)")
+    if row["blackout"]:
+        flag(1, f"{row['blackout']} frame(s) with no marker observed")
+    if row["unfilled"]:
+        reasons.append(f"{row['unfilled']} frame(s) left unfilled")
+    return VERDICTS[level], reasons
+
+
+def gap_table(points, filled, rate: float | None = None, names=None, std=None, *,
+              units: str = "mm", first_frame: int = 0, support=None) -> list[dict]:
+    """One row per gap of ``points`` (the input, (T, J, D) with NaN), judged on ``filled`` (the
+    fill's output) and ``std`` ((T, J), the fill's error estimate per coordinate, optional).
+
+    ``first_frame`` is the file's number of frame 0: rows carry ``first_frame``/``last_frame`` in
+    the file's numbering and ``start``/``stop`` as indices (``stop`` exclusive). ``support``
+    (T, J) bool, optional: samples a spatial model filled from markers seen in the same frame
+    (default: those with >= ``MIN_PARTNERS`` rigid partners observed). Each row has ``verdict``
+    and ``reasons`` (see :func:`verdict`); ``table_thresholds(rows)`` gives the thresholds.
+    """
     X = np.asarray(points, dtype=np.float64)
     F = np.asarray(filled, dtype=np.float64)
+    if F.shape != X.shape:
+        raise ValueError(f"filled has shape {F.shape}, the input {X.shape}")
+    T, J, D = X.shape
     missing = ~np.isfinite(X).all(axis=2)
     observed = ~missing
-    T = X.shape[0]
-    pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], X, np.nan)))
-    _, donors = rigid_fill(torch.from_numpy(X), torch.from_numpy(observed), pairs)
-    donors = donors.numpy()
-    lim = limits(X, observed, pairs)
-    rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-    ref = pairs.distance.numpy()
+    rigid = ref = spread = None
+    scale = None
+    if observed.any():
+        obs = np.where(observed[..., None], X, np.nan)
+        pairs = rigid_pairs(torch.from_numpy(obs), torch.from_numpy(observed))
+        scale = pairs.scale
+        if D == 3:
+            rigid = (pairs.rigid & ~pairs.duplicate).numpy()
+            ref = pairs.distance.numpy()
+            wide = pairs.wide.numpy() if pairs.wide is not None else pairs.spread.numpy()
+            spread = np.maximum(np.nan_to_num(wide, nan=np.inf), pairs.tol * pairs.scale)
+            if support is None:
+                _, support = rigid_fill(torch.from_numpy(X), torch.from_numpy(observed), pairs,
+                                        min_partners=MIN_PARTNERS)
+                support = support.numpy()
+    if support is None:
+        support = np.zeros((T, J), dtype=bool)
+    support = np.asarray(support, dtype=bool)
+    if std is not None and rigid is not None:
+        # the constraints replace these samples by the rigid-donor fill, which is used only
+        # where its hold-out error is at most tol x scale (3-D RMS): that bounds their error
+        std = np.asarray(std, dtype=np.float64)
+        std = np.where(support & np.isfinite(std),
+                       np.minimum(std, pairs.tol * pairs.scale / np.sqrt(D)), std)
+    cap = metrics.step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR) \
+        if observed.any() else np.inf
+    bounds = metrics.volume(X, observed, VOLUME_MARGIN) if observed.any() else \
+        (np.full(D, -np.inf), np.full(D, np.inf))
     black = ~observed.any(axis=1)
     rows = []
     for j, a, b in metrics.gap_runs(missing):
         if not observed[:, j].any():
             continue
-        rows.append(_gap_row(X, F, j, a, b, T, rate, names, donors, lim, rigid, ref, black))
-        if std is not None:
-            s = np.asarray(std, dtype=np.float64)[a:b, j]
-            rows[-1]["est_std"] = float(np.sqrt(np.mean(s[np.isfinite(s)] ** 2))) \
-                if np.isfinite(s).any() else np.nan
+        row = _gap_row(X, F, j, a, b, rate, names, rigid, ref, spread, support, bounds, black)
+        row["est_rmse"] = est_rmse(std, j, a, b, D)
+        row["first_frame"], row["last_frame"] = first_frame + a, first_frame + b - 1
+        rows.append(row)
+    ests = [r["est_rmse"] for r in rows if np.isfinite(r["est_rmse"])]
+    med = float(np.median(ests)) if ests else math.nan
+    th = thresholds(units, per_mm(units, D, scale), cap, bounds, med)
+    for row in rows:
+        row["verdict"], row["reasons"] = verdict(row, th)
+        row["thresholds"] = th
     return rows
 
 
-def _gap_row(X, F, j, a, b, T, rate, names, donors, lim, rigid, ref, black) -> dict:
+def table_thresholds(rows: list[dict]) -> Thresholds | None:
+    return rows[0]["thresholds"] if rows else None
+
+
+def _gap_row(X, F, j, a, b, rate, names, rigid, ref, spread, support, bounds, black) -> dict:
+    T, D = X.shape[0], X.shape[2]
     seg = F[max(a - 1, 0):min(b + 1, T), j]
     steps = np.linalg.norm(np.diff(seg, axis=0), axis=1)
-    partners = np.flatnonzero(rigid[j])
-    dev = np.abs(np.linalg.norm(F[a:b, j][:, None] - F[a:b][:, partners], axis=2) - ref[j, partners])
-    gap_mask = np.zeros(X.shape[:2], dtype=bool)
-    gap_mask[a:b, j] = True
-    jumps = metrics.edge_jumps(F, gap_mask)
-    inside = np.isfinite(F[a:b, j]).all(axis=1)
-    row = {
-        "marker": names[j] if names is not None else str(j), "j": int(j),
-        "start": int(a), "stop": int(b), "frames": int(b - a),
-        "seconds": (b - a) / rate if rate else np.nan,
-        "kind": "extrapolated" if a == 0 or b == T else "interpolated",
-        "rigid_donors": float(donors[a:b, j].mean()),
-        "rigid_dev": float(np.nanmax(dev)) if dev.size and np.isfinite(dev).any() else np.nan,
-        "edge_jump": float(jumps.max()) if jumps.size else np.nan,
-        "max_step": float(np.nanmax(steps)) if np.isfinite(steps).any() else np.nan,
-        "outside": metrics.outside_volume(F[a:b, j][:, None], np.ones((b - a, 1), bool), lim.bounds),
-        "unfilled": int((~inside).sum()), "blackout": int(black[a:b].sum()),
-        "step_limit": lim.step,
-    }
-    row["verdict"] = _verdict(row, lim)
+    fin = np.isfinite(F[a:b, j]).all(axis=1)
+    row = {"marker": names[j] if names is not None else str(j), "j": int(j),
+           "start": int(a), "stop": int(b), "frames": int(b - a),
+           "seconds": (b - a) / rate if rate else math.nan,
+           "kind": ("whole" if a == 0 and b == T else "start" if a == 0 else
+                    "end" if b == T else "interior"),
+           "filled_frames": int(fin.sum()), "unfilled": int((~fin).sum()),
+           "support": float(support[a:b, j].mean()),
+           "max_step": float(np.nanmax(steps)) if np.isfinite(steps).any() else math.nan,
+           "rigid_dev": math.nan, "rigid_ratio": math.nan, "rigid_partner": "",
+           "outside": 0, "extrapolated": 0, "extrapolated_s": 0.0,
+           "blackout": int(black[a:b].sum()), "segment": None}
+    if rigid is not None and fin.any():
+        partners = np.flatnonzero(rigid[j])
+        if partners.size:
+            d = np.linalg.norm(F[a:b, j][:, None] - F[a:b][:, partners], axis=2)
+            ratio = np.abs(d - ref[j, partners]) / spread[j, partners]
+            if np.isfinite(ratio).any():
+                t, k = np.unravel_index(np.nanargmax(ratio), ratio.shape)
+                row["rigid_ratio"] = float(ratio[t, k])
+                row["rigid_dev"] = float(abs(d[t, k] - ref[j, partners[k]]))
+                row["rigid_partner"] = names[partners[k]] if names is not None else str(partners[k])
+    if fin.any():
+        lo, hi = bounds
+        P = F[a:b, j][fin]
+        tol = 1e-9 * np.maximum(hi - lo, 1e-12)
+        row["outside"] = int(((P <= lo + tol) | (P >= hi - tol)).any(axis=1).sum())
+    if row["kind"] in ("start", "end"):
+        n = int((fin & ~support[a:b, j]).sum())
+        row["extrapolated"] = n
+        row["extrapolated_s"] = n / rate if rate else float(n)
     return row
 
 
-def _verdict(row: dict, lim: Limits) -> str:
-    why = []
-    if row["kind"] == "extrapolated" and row["rigid_donors"] < 1:
-        why.append("extrapolated")
-    if row["max_step"] > lim.step:
-        why.append("teleport")
-    if row["edge_jump"] > lim.accel:
-        why.append("edge jump")
-    if row["rigid_dev"] > lim.rigid:
-        why.append("rigid deviation")
-    if row["outside"]:
-        why.append("outside volume")
-    if row["unfilled"]:
-        why.append("unfilled")
-    if row["blackout"]:
-        why.append("blackout")
-    if row["seconds"] > LONG_SECONDS and row["rigid_donors"] < 1:
-        why.append("long, no donors")
-    return "ok" if not why else "check: " + ", ".join(why)
+# -- output ----------------------------------------------------------------------------------------
+def summary(rows: list[dict]) -> str:
+    """``N gaps: a ok, b check, c reject`` (+ unfilled)."""
+    n = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
+    unfilled = sum(r["filled_frames"] == 0 for r in rows)
+    return (f"{len(rows)} gaps: {n['ok']} ok, {n['check']} check, {n['reject']} reject"
+            + (f" ({unfilled} left unfilled)" if unfilled else ""))
 
 
-def format_table(rows: list[dict], units: str = "") -> str:
-    """The gap table as fixed-width text."""
-    head = (f"{'marker':<16}{'frames':>14}{'len':>6}  {'kind':<13}{'donors':>7}{'rigid_dev':>10}"
-            f"{'edge_jump':>10}{'max_step':>10}{'outside':>8}{'unfilled':>9}  verdict")
-    lines = [f"units {units}; max_step limit {rows[0]['step_limit']:.4g}" if rows else "no gaps", head]
+def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = None) -> str:
+    """The gap table as fixed-width text, thresholds first (in the file's units)."""
+    th = table_thresholds(rows)
+    if th is None:
+        return "no gaps"
+    u = th.units or units
+    has_std = any(np.isfinite(r["est_rmse"]) for r in rows) if has_std is None else has_std
+    lines = [f"thresholds ({u}):"] + [f"  {line}" for line in th.lines()]
+    if not has_std:
+        lines.append("  no error estimate given: verdicts from the plausibility tests only "
+                     "(fill --std OUT.csv, then qc --std OUT.csv)")
+    width = max(6, min(16, max(len(r["marker"]) for r in rows)))
+    lines.append(f"{'marker':<{width}} {'frames':>13} {'len':>5} {'kind':<8} {'est_rmse':>9} "
+                 f"{'max_step':>9} {'rigid_x':>7} {'support':>7}  verdict  reasons")
+    lines.append(f"{'':<{width}} {'(file)':>13} {'':>5} {'':<8} {'(' + u + ')':>9} "
+                 f"{'(' + u + ')':>9} {'spread':>7}")
     for r in rows:
-        lines.append(f"{r['marker'][:15]:<16}{r['start']:>7}-{r['stop'] - 1:<6}{r['frames']:>6}  "
-                     f"{r['kind']:<13}{r['rigid_donors']:>7.0%}{r['rigid_dev']:>10.3g}"
-                     f"{r['edge_jump']:>10.3g}{r['max_step']:>10.3g}{r['outside']:>8d}"
-                     f"{r['unfilled']:>9d}  {r['verdict']}")
+        lines.append(f"{r['marker'][:width]:<{width}} {r['first_frame']:>6}-{r['last_frame']:<6} "
+                     f"{r['frames']:>5} {r['kind']:<8} {r['est_rmse']:>9.3g} {r['max_step']:>9.3g} "
+                     f"{r['rigid_ratio']:>7.3g} {r['support']:>7.0%}  {r['verdict']:<7}  "
+                     f"{'; '.join(r['reasons'])}")
     return "\n".join(lines)
 
 
-def _worst(rows: list[dict], n: int) -> list[dict]:
-    def badness(r):
-        return (r["verdict"] != "ok", r["verdict"].count(",") + 1, r["frames"])
-    return sorted(rows, key=badness, reverse=True)[:n]
+def to_json(rows: list[dict]) -> list[dict]:
+    """One JSON-ready object per gap: ``marker``, ``first_frame``, ``last_frame`` (the file's
+    numbering), ``verdict``, ``est_rmse`` (file units, None without std), ``reasons``,
+    ``segment`` (None until segments are known), plus the measurements."""
+    out = []
+    for r in rows:
+        def num(v):
+            return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
+        out.append({"marker": r["marker"], "first_frame": int(r["first_frame"]),
+                    "last_frame": int(r["last_frame"]), "verdict": r["verdict"],
+                    "est_rmse": num(r["est_rmse"]), "reasons": list(r["reasons"]),
+                    "segment": r.get("segment"), "frames": r["frames"], "kind": r["kind"],
+                    "filled_frames": r["filled_frames"], "support": num(r["support"]),
+                    "max_step": num(r["max_step"]), "rigid_ratio": num(r["rigid_ratio"]),
+                    "rigid_partner": r["rigid_partner"] or None, "outside": r["outside"],
+                    "extrapolated": r["extrapolated"], "blackout": r["blackout"]})
+    return out
 
 
-def _plot(X, F, row, rigid, ref, labels, rate) -> str:
-    """One gap as an embedded PNG: coordinates (observed, filled) and partner distances."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    T = X.shape[0]
-    j, a, b = row["j"], row["start"], row["stop"]
-    pad = max(20, (b - a) // 2)
-    lo, hi = max(0, a - pad), min(T, b + pad)
-    t = np.arange(lo, hi) / (rate or 1.0)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.2))
-    for c, name in enumerate("xyz"):
-        axes[0].plot(t, F[lo:hi, j, c], "--", lw=1, color=f"C{c}")
-        axes[0].plot(t, X[lo:hi, j, c], "-", lw=2, color=f"C{c}", label=name)
-    for ax in axes:
-        ax.axvspan(a / (rate or 1.0), (b - 1) / (rate or 1.0), color="0.9")
-        ax.set_xlabel("s" if rate else "frame")
-    axes[0].set_title(f"{row['marker']} frames {a}-{b - 1}: observed (solid), filled (dashed)",
-                      fontsize=9)
-    axes[0].legend(fontsize=8)
-    for k in np.flatnonzero(rigid[j])[:4]:
-        d = np.linalg.norm(F[lo:hi, j] - F[lo:hi, k], axis=1)
-        axes[1].plot(t, d - ref[j, k], lw=1, label=labels[k])
-    axes[1].set_title("distance to rigid partners minus observed median", fontsize=9)
-    if np.flatnonzero(rigid[j]).size:
-        axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80)
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+def thresholds_json(rows: list[dict]) -> dict | None:
+    th = table_thresholds(rows)
+    if th is None:
+        return None
+    d = asdict(th)
+    d["volume"] = [list(map(float, th.volume[0])), list(map(float, th.volume[1]))]
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
-                names=None, n_plots: int = 6) -> str:
-    """A self-contained HTML page: summary, the gap table (check rows first), worst-gap plots."""
-    X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
-    observed = np.isfinite(X).all(axis=2)
-    pairs = rigid_pairs(torch.from_numpy(X))
-    rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-    labels = names or [str(j) for j in range(X.shape[1])]
-    n_check = sum(r["verdict"] != "ok" for r in rows)
-    esc = html.escape
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>",
-             "<style>body{font-family:sans-serif;margin:20px}table{border-collapse:collapse;"
-             "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
-             "td.l{text-align:left}tr.check{background:#fff1e0}</style></head><body>",
-             f"<h1>torchfill qc: {esc(title)}</h1>",
-             f"<p>{X.shape[0]} frames, {X.shape[1]} markers, rate {rate or 'unknown'} Hz, "
-             f"units {esc(units)}; {len(rows)} gaps, <b>{n_check} to check</b>; "
-             f"{int((~observed.any(axis=1)).sum())} frames with no marker observed; "
-             f"teleport limit {rows[0]['step_limit']:.4g} {esc(units)} per frame.</p>"
-             if rows else "<p>no gaps</p>"]
-    for row in _worst(rows, n_plots):
-        png = _plot(X, F, row, rigid, pairs.distance.numpy(), labels, rate)
-        parts.append(f"<h3>{esc(row['marker'])} {row['start']}-{row['stop'] - 1}: "
-                     f"{esc(row['verdict'])}</h3><img src='data:image/png;base64,{png}'>")
-    cols = ["frames", "kind", "rigid_donors", "rigid_dev", "edge_jump", "max_step", "outside",
-            "unfilled", *(["est_std"] if rows and "est_std" in rows[0] else []), "verdict"]
-    parts.append("<h2>All gaps</h2><table><tr><th>marker</th><th>start-stop</th>"
-                 + "".join(f"<th>{c}</th>" for c in cols) + "</tr>")
-    for r in sorted(rows, key=lambda r: (r["verdict"] == "ok", r["j"], r["start"])):
-        cells = "".join(f"<td class='l'>{esc(str(r[c]))}</td>" if isinstance(r[c], str)
-                        else f"<td>{r[c]:.3g}</td>" for c in cols)
-        cls = "" if r["verdict"] == "ok" else " class='check'"
-        parts.append(f"<tr{cls}><td class='l'>{esc(r['marker'])}</td>"
-                     f"<td>{r['start']}-{r['stop'] - 1}</td>{cells}</tr>")
-    parts.append("</table></body></html>")
-    return "\n".join(parts)
+                names=None, std=None, first_frame: int = 0, **kwargs) -> str:
+    """The self-contained HTML report (see :mod:`torchfill.qc_report`)."""
+    from .qc_report import html_report as build
+    return build(points, filled, rows, title=title, rate=rate, units=units, names=names,
+                 std=std, first_frame=first_frame, **kwargs)
