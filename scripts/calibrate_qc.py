@@ -83,7 +83,27 @@ def transplant_case(source: str, truth: str, seed: int):
     return gappy, truth_seq
 
 
-def cases(only=None):
+def suite_cases(only=None):
+    """The real-gap-pattern suite (scripts/real_gap_suite.py), when this checkout has it."""
+    import sys
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        import real_gap_suite
+    except ImportError:
+        return
+    for case in real_gap_suite.cases(DATA):
+        if only and case.name not in only:
+            continue
+        yield case.name, lambda c=case: (c.gapped(), c.truth)
+
+
+def cases(only=None, group="all"):
+    """(name, make) of every case: ``group`` "own" (tennis + TRANSPLANTS: the thresholds were
+    chosen on these), "suite" (the real-gap-pattern suite: held out), or "all"."""
+    if group in ("suite", "all"):
+        yield from suite_cases(only)
+    if group == "suite":
+        return
     if not only or "tennis" in only:
         gappy = torchfill.read(DATA / "ktk_tennis_serve_nan.c3d")
         truth = torchfill.read(DATA / "ktk_tennis_serve.c3d")
@@ -167,11 +187,14 @@ def main() -> None:
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--refill", action="store_true")
     parser.add_argument("--rows", action="store_true", help="print every big or flagged gap")
+    parser.add_argument("--group", choices=("own", "suite", "all"), default="all",
+                        help="own: tennis + this script's transplants (the thresholds were chosen "
+                             "on these); suite: the real-gap-pattern suite (held out)")
     args = parser.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name, make in cases(args.only):
+    for name, make in cases(args.only, args.group):
         d = filled_case(name, make, cache, args.refill)
         got = judged(name, d)
         rows += got
