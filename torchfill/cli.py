@@ -108,17 +108,23 @@ def _cmd_fill(args) -> int:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = torchfill.default_method() if args.method is None else args.method
     n_missing = int(seq.mask.sum())
+    want_std = bool(args.std or args.report or args.report_json)   # the qc verdict uses it
     _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
     with _naming(args.input):
         filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                constraints=args.constraints, return_std=bool(args.std), **params)
-    filled = filled[0] if args.std else filled
+                                constraints=args.constraints, return_std=want_std, **params)
+    filled = filled[0] if want_std else filled
     _clear_progress(args)
     torchfill.write(filled, out_path)
     if args.std:
         _write_std(filled, Path(args.std))
-    if args.report:
-        _write_report(seq, filled, Path(args.report), str(args.input))
+    if args.report or args.report_json:
+        rows = _qc_rows(seq, filled, filled.meta.get("std"))
+        if args.report:
+            _write_report(seq, filled, Path(args.report), str(args.input), rows,
+                          filled.meta.get("std"))
+        if args.report_json:
+            _write_json(rows, Path(args.report_json))
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
@@ -130,26 +136,86 @@ def _cmd_qc(args) -> int:
     import torchfill
     from torchfill import qc
 
-    seq, filled = torchfill.read(args.input), torchfill.read(args.filled)
+    seq = torchfill.read(args.input, **_pose_options(args))
+    filled = _read_filled(args.filled, args)
     if filled.points.shape != seq.points.shape:
         raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
                          f"{args.input}'s {seq.points.shape}")
-    rows = qc.gap_table(seq.points, filled.points, seq.rate, seq.labels)
-    print(qc.format_table(rows, seq.units))
+    std = _read_std(Path(args.std), seq) if args.std else filled.meta.get("std")
+    rows = _qc_rows(seq, filled, std)
+    if args.json == "-":
+        print(json.dumps(qc.to_json(rows), indent=1))
+    else:
+        print(qc.format_table(rows, seq.units))
     report = Path(args.output) if args.output else Path(args.filled).with_suffix(".qc.html")
-    _write_report(seq, filled, report, str(args.filled), rows)
-    n_check = sum(r["verdict"] != "ok" for r in rows)
-    _say(args, f"{len(rows)} gaps, {n_check} to check -> {report}")
+    _write_report(seq, filled, report, str(args.filled), rows, std)
+    if args.json and args.json != "-":
+        _write_json(rows, Path(args.json))
+    if not args.quiet:
+        print(f"{qc.summary(rows)} -> {report}", file=sys.stderr if args.json == "-" else sys.stdout)
     return 0
 
 
-def _write_report(seq, filled, path: Path, title: str, rows=None) -> None:
+def _frame0(seq) -> int:
+    """The file's number of the first frame (C3D first frame, TRC Frame#; 0 for arrays)."""
+    value = getattr(seq, "first_frame", None)
+    if value is None:
+        value = seq.meta.get("first_frame", 0)
+    return int(value or 0)
+
+
+def _read_filled(path, args):
+    """A filled recording; an OpenPose folder counts its filled keypoints (confidence 0 but
+    coordinates written) as filled, not missing."""
+    import torchfill
+
+    if Path(path).is_dir():
+        return torchfill.read(path, include_filled=True, **_pose_options(args))
+    return torchfill.read(path)
+
+
+def _read_std(path: Path, seq):
+    """The ``fill --std`` CSV (a frame column, one column per marker) as (T, J), by label."""
+    import numpy as np
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = f.readline().rstrip("\n").split(",")
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: not a std CSV written by 'fill --std' ({_one_line(err)})") \
+            from None
+    if table.shape[0] != seq.n_frames or table.shape[1] != len(head):
+        raise ValueError(f"{path}: {table.shape[0]} rows x {table.shape[1]} columns, expected "
+                         f"{seq.n_frames} frames and a column per marker")
+    column = {label: i for i, label in enumerate(head[1:], start=1)}
+    missing = [label for label in seq.labels if label not in column]
+    if missing:
+        raise ValueError(f"{path}: no column for marker(s) {', '.join(missing[:5])}")
+    return table[:, [column[label] for label in seq.labels]]
+
+
+def _qc_rows(seq, filled, std):
     from torchfill import qc
 
-    rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
-                                                      seq.labels, filled.meta.get("std"))
+    return qc.gap_table(seq.points, filled.points, seq.rate, seq.labels, std,
+                        units=seq.units, first_frame=_frame0(seq),
+                        support=filled.meta.get("support"))
+
+
+def _write_report(seq, filled, path: Path, title: str, rows=None, std=None) -> None:
+    from torchfill import qc
+
+    rows = rows if rows is not None else _qc_rows(seq, filled, std)
     path.write_text(qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
-                                   units=seq.units, names=seq.labels), encoding="utf-8")
+                                   units=seq.units, names=seq.labels, std=std,
+                                   first_frame=_frame0(seq)), encoding="utf-8")
+
+
+def _write_json(rows, path: Path) -> None:
+    from torchfill import qc
+
+    path.write_text(json.dumps(qc.to_json(rows), indent=1) + "\n", encoding="utf-8")
 
 
 def _cmd_fill_batch(args) -> int:
@@ -241,7 +307,9 @@ def _cmd_info(args) -> int:
     inner = [b - a for _, a, b in runs if a > 0 and b < T]
     seen = seq.mask[:, ~never]
     print(seq)
-    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
+    f0 = _frame0(seq)
+    print(f"frames {T} (numbered {f0}-{f0 + T - 1} as in the file), markers {seq.n_markers}, "
+          f"rate {seq.rate:g} Hz, units {seq.units}, "
           f"{len(runs)} gaps, longest {max((b - a for _, a, b in runs), default=0)} frames")
     print(f"  {len(inner)} interior gap(s) (longest {max(inner, default=0)} frames), "
           f"{len(runs) - len(inner)} at the trial ends; "
@@ -255,12 +323,15 @@ def _cmd_info(args) -> int:
         print("  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
                                                  for label, idx in dups.items()))
     width = max((len(label) for label in seq.labels), default=6)
-    print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
+    print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}  frames (file's numbering)")
     for j, label in enumerate(seq.labels):
-        own = [b - a for k, a, b in runs if k == j]
+        spans = [(a, b) for k, a, b in runs if k == j]
+        own = [b - a for a, b in spans]
         if own or never[j] or args.all_markers:
+            where = ", ".join(f"{f0 + a}-{f0 + b - 1}" for a, b in spans[:4]) + \
+                (f", ... ({len(spans)} gaps)" if len(spans) > 4 else "")
             print(f"{label:<{width}}  {int(seq.mask[:, j].sum()):>8}  {len(own):>5}  "
-                  f"{max(own, default=0):>7}" + ("  never observed" if never[j] else ""))
+                  f"{max(own, default=0):>7}  " + ("never observed" if never[j] else where))
     return 0
 
 
@@ -315,7 +386,7 @@ def _write_std(seq, path: Path) -> None:
     import numpy as np
 
     std = seq.meta["std"]
-    table = np.column_stack([np.arange(std.shape[0]), std])
+    table = np.column_stack([_frame0(seq) + np.arange(std.shape[0]), std])
     np.savetxt(path, table, delimiter=",", fmt="%.6g", comments="",
                header=",".join(["frame", *seq.labels]))
 
@@ -444,6 +515,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
     p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill")
+    p.add_argument("--report-json", metavar="REPORT.json",
+                   help="also write the qc verdicts as JSON (one object per gap)")
     p.add_argument("--no-constraints", dest="constraints", action="store_false",
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
@@ -465,7 +538,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("filled", metavar="FILLED")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="HTML report (default: FILLED with suffix .qc.html)")
+    p.add_argument("--json", metavar="OUT.json", help="also write the verdicts as JSON, one object "
+                   "per gap: marker, first_frame, last_frame (the file's numbering), verdict, "
+                   "est_rmse (file units), reasons, segment ('-': print it instead of the table)")
+    p.add_argument("--std", metavar="STD.csv",
+                   help="the fill's error estimate ('fill --std' output): verdicts use it")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",

@@ -1,0 +1,266 @@
+"""The QC report as one self-contained HTML page (no network: inline SVG, PNG and JavaScript).
+
+- a summary with the thresholds in the file's units;
+- a marker x time overview of every gap, coloured by verdict (frames numbered as in the file);
+- a figure per gap that is not ``ok``: each coordinate observed around the gap, the fill with its
+  +-2 sigma band (when the fill's std is known), and the distances to the rigid partners against
+  their observed median +- spread;
+- a table of every gap, sortable by clicking a column head, units in the heads.
+
+Marker labels go to matplotlib with every ``$`` escaped (a label holding two would otherwise be
+parsed as mathtext, and crash on what lies between).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+
+import numpy as np
+import torch
+
+from .solvers.rigid import rigid_pairs
+
+#: Figures at most (the worst gaps first); the table lists every gap.
+MAX_FIGURES = 80
+COLOURS = {"ok": "#4caf50", "check": "#ff9800", "reject": "#e53935"}
+_ORDER = {"reject": 0, "check": 1, "ok": 2}
+
+
+def plain(text: str) -> str:
+    """``text`` as matplotlib shows it literally: ``$`` escaped (no mathtext), no leading ``_``
+    (which hides a legend entry)."""
+    text = str(text).replace("$", r"\$")
+    return " " + text if text.startswith("_") else text
+
+
+def _fmt(v, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    return f"{v:.{digits}g}" if isinstance(v, float) else str(v)
+
+
+def overview_svg(rows: list[dict], n_frames: int, labels, first_frame: int = 0,
+                 width: int = 1000, filled=None) -> str:
+    """Marker x time: one band per marker with gaps, a box per gap in its verdict's colour (the
+    frames left unfilled greyed)."""
+    js = sorted({r["j"] for r in rows})
+    if not js:
+        return ""
+    row_h, left, top = 14, 150, 18
+    plot_w = width - left - 10
+    height = top + row_h * len(js) + 22
+    x = lambda t: left + plot_w * t / max(n_frames, 1)       # noqa: E731
+    esc = html.escape
+    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' "
+           f"font-family='sans-serif' font-size='10' role='img'>"]
+    for i, j in enumerate(js):
+        y = top + i * row_h
+        if i % 2:
+            out.append(f"<rect x='{left}' y='{y}' width='{plot_w}' height='{row_h}' fill='#f4f4f4'/>")
+        out.append(f"<text x='{left - 4}' y='{y + row_h - 3}' text-anchor='end'>"
+                   f"{esc(str(labels[j]))[:24]}</text>")
+    for r in rows:
+        y = top + js.index(r["j"]) * row_h + 1
+        x0, x1 = x(r["start"]), x(r["stop"])
+        tip = (f"{r['marker']} frames {r['first_frame']}-{r['last_frame']}: {r['verdict']}"
+               + (" (" + "; ".join(r["reasons"]) + ")" if r["reasons"] else ""))
+        colour = COLOURS[r["verdict"]] if r["filled_frames"] else "#9e9e9e"
+        out.append(f"<rect x='{x0:.1f}' y='{y}' width='{max(x1 - x0, 1.5):.1f}' "
+                   f"height='{row_h - 2}' fill='{colour}'><title>{esc(tip)}</title></rect>")
+        if filled is not None and 0 < r["unfilled"] < r["frames"]:
+            hole = ~np.asarray(filled[r["start"]:r["stop"], r["j"]], dtype=bool)
+            edges = np.flatnonzero(np.diff(np.r_[0, hole.astype(np.int8), 0]))
+            for a, b in zip(edges[::2], edges[1::2]):
+                xa, xb = x(r["start"] + a), x(r["start"] + b)
+                out.append(f"<rect x='{xa:.1f}' y='{y}' width='{max(xb - xa, 1.5):.1f}' "
+                           f"height='{row_h - 2}' fill='#9e9e9e'><title>{esc(tip)}: "
+                           f"{b - a} frame(s) left unfilled</title></rect>")
+    ticks = np.unique(np.linspace(0, n_frames - 1, 9).round().astype(int)) if n_frames > 1 else [0]
+    base = top + row_h * len(js)
+    out.append(f"<line x1='{left}' x2='{left + plot_w}' y1='{base}' y2='{base}' stroke='#555'/>")
+    for t in ticks:
+        out.append(f"<line x1='{x(t):.1f}' x2='{x(t):.1f}' y1='{base}' y2='{base + 4}' "
+                   f"stroke='#555'/><text x='{x(t):.1f}' y='{base + 15}' text-anchor='middle'>"
+                   f"{first_frame + t}</text>")
+    out.append(f"<text x='{left - 20}' y='{base + 15}' text-anchor='end'>frame</text></svg>")
+    return "".join(out)
+
+
+def gap_figure(X, F, std, row: dict, *, partners, distance, spread, labels, units: str,
+               first_frame: int = 0) -> str:
+    """One gap as a base64 PNG: each coordinate (observed solid, fill dashed with +-2 sigma),
+    and the rigid partners' distances minus their observed median (the +-spread band shaded)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    T, _, D = X.shape
+    j, a, b = row["j"], row["start"], row["stop"]
+    pad = max(15, (b - a) // 2)
+    lo, hi = max(0, a - pad), min(T, b + pad)
+    t = first_frame + np.arange(lo, hi)
+    n_ax = D + (1 if len(partners) else 0)
+    fig, axes = plt.subplots(1, n_ax, figsize=(3.1 * n_ax, 2.5))
+    axes = np.atleast_1d(axes)
+    names = "xyz"[:D] if D <= 3 else [str(c) for c in range(D)]
+    for c in range(D):
+        ax = axes[c]
+        ax.axvspan(first_frame + a - 0.5, first_frame + b - 0.5, color="0.92", lw=0)
+        ax.plot(t, X[lo:hi, j, c], "-", lw=1.8, color="k", label="observed")
+        fill = np.where(np.isfinite(X[lo:hi, j, c]), np.nan, F[lo:hi, j, c])
+        # the fill joined to its observed edges so a one-frame gap shows as a line too
+        edge = np.isfinite(X[lo:hi, j, c]) & (np.convolve(np.isfinite(fill), [1, 1, 1], "same") > 0)
+        fill = np.where(edge, X[lo:hi, j, c], fill)
+        ax.plot(t, fill, "--", lw=1.4, color="C0", label="fill")
+        if std is not None:
+            s = np.asarray(std)[lo:hi, j]
+            ok = np.isfinite(s) & np.isfinite(F[lo:hi, j, c])
+            if ok.any():
+                ax.fill_between(t, np.where(ok, F[lo:hi, j, c] - 2 * s, np.nan),
+                                np.where(ok, F[lo:hi, j, c] + 2 * s, np.nan), color="C0",
+                                alpha=0.25, lw=0, label="fill ± 2σ")
+        ax.set_title(f"{names[c]} ({plain(units)})", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("frame", fontsize=8)
+    axes[0].legend(fontsize=7, loc="best")
+    if len(partners):
+        ax = axes[-1]
+        ax.axvspan(first_frame + a - 0.5, first_frame + b - 0.5, color="0.92", lw=0)
+        for i, k in enumerate(partners[:4]):
+            d = np.linalg.norm(F[lo:hi, j] - F[lo:hi, k], axis=1) - distance[j, k]
+            ax.plot(t, d, lw=1.1, color=f"C{i + 1}", label=plain(labels[k]))
+            ax.axhspan(-spread[j, k], spread[j, k], color=f"C{i + 1}", alpha=0.08, lw=0)
+        ax.set_title(f"partner distance − median ({plain(units)})", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("frame", fontsize=8)
+        ax.legend(fontsize=7, loc="best")
+    fig.suptitle(plain(f"{row['marker']} frames {row['first_frame']}-{row['last_frame']}: "
+                       f"{row['verdict']}"), fontsize=10)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=72)
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+_SORT_JS = """
+document.querySelectorAll('table.sortable th').forEach(function (th, col) {
+  th.addEventListener('click', function () {
+    var table = th.closest('table'), body = table.tBodies[0];
+    var asc = th.getAttribute('data-dir') !== 'asc';
+    table.querySelectorAll('th').forEach(function (h) { h.removeAttribute('data-dir'); });
+    th.setAttribute('data-dir', asc ? 'asc' : 'desc');
+    var rows = Array.prototype.slice.call(body.rows);
+    rows.sort(function (a, b) {
+      var x = a.cells[col].getAttribute('data-v'), y = b.cells[col].getAttribute('data-v');
+      var nx = parseFloat(x), ny = parseFloat(y), r;
+      if (!isNaN(nx) && !isNaN(ny)) r = nx - ny;
+      else if (isNaN(nx) !== isNaN(ny)) r = isNaN(nx) ? 1 : -1;
+      else r = x < y ? -1 : x > y ? 1 : 0;
+      return asc ? r : -r;
+    });
+    rows.forEach(function (r) { body.appendChild(r); });
+  });
+});
+"""
+
+_CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collapse:collapse;"
+        "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
+        "th{background:#eee;cursor:pointer;user-select:none}th[data-dir=asc]:after{content:' ▲'}"
+        "th[data-dir=desc]:after{content:' ▼'}td.l{text-align:left}tr.check td.v{background:"
+        "#ffe0b2}tr.reject td.v{background:#ffcdd2}tr.ok td.v{background:#dcedc8}"
+        ".legend span{display:inline-block;width:12px;height:12px;margin:0 4px 0 12px;"
+        "vertical-align:middle}figure{margin:10px 0}figcaption{font-size:12px}")
+
+
+def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
+                names=None, std=None, first_frame: int = 0, max_figures: int = MAX_FIGURES) -> str:
+    """The report page (see the module docstring) for the gap ``rows`` of :func:`qc.gap_table`."""
+    from .qc import summary, table_thresholds
+
+    X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
+    T, J, D = X.shape
+    labels = list(names) if names is not None else [str(j) for j in range(J)]
+    esc = html.escape
+    u = esc(units or "")
+    observed = np.isfinite(X).all(axis=2)
+    partners_of, distance, spread = {}, None, None
+    if D == 3 and observed.any():
+        pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], X, np.nan)),
+                            torch.from_numpy(observed))
+        rigid = (pairs.rigid & ~pairs.duplicate).numpy()
+        distance = pairs.distance.numpy()
+        wide = pairs.wide.numpy() if pairs.wide is not None else pairs.spread.numpy()
+        spread = np.maximum(np.nan_to_num(wide, nan=0.0), pairs.tol * pairs.scale)
+        for j in {r["j"] for r in rows}:
+            ks = np.flatnonzero(rigid[j])
+            partners_of[j] = ks[np.argsort(pairs.spread.numpy()[j, ks])]
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>torchfill qc: "
+             f"{esc(title)}</title><style>{_CSS}</style></head><body>",
+             f"<h1>torchfill qc: {esc(title)}</h1>"]
+    f1 = first_frame + T - 1
+    parts.append(f"<p>{T} frames (numbered {first_frame}-{f1} as in the file), {J} markers, rate "
+                 f"{_fmt(rate) or 'unknown'} Hz, units {u}. <b>{esc(summary(rows))}</b>; "
+                 f"{int((~observed.any(axis=1)).sum())} frame(s) with no marker observed.</p>")
+    th = table_thresholds(rows)
+    if th is not None:
+        parts.append("<h2>Thresholds</h2><ul>" + "".join(f"<li>{esc(line)}</li>"
+                                                        for line in th.lines()) + "</ul>")
+        if not any(np.isfinite(r["est_rmse"]) for r in rows):
+            parts.append("<p>No error estimate was given: the verdicts come from the "
+                         "plausibility tests only.</p>")
+    if rows:
+        parts.append("<h2>Overview</h2><p class='legend'>"
+                     + "".join(f"<span style='background:{c}'></span>{v}"
+                               for v, c in COLOURS.items())
+                     + "<span style='background:#9e9e9e'></span>left unfilled</p>")
+        parts.append(overview_svg(rows, T, labels, first_frame,
+                                  filled=np.isfinite(F).all(axis=2)))
+    bad = sorted((r for r in rows if r["verdict"] != "ok"),
+                 key=lambda r: (_ORDER[r["verdict"]], -(r["est_rmse"] if np.isfinite(r["est_rmse"])
+                                                        else 0.0), -r["frames"]))
+    if bad:
+        parts.append(f"<h2>Gaps to check ({len(bad)})</h2>")
+        if len(bad) > max_figures:
+            parts.append(f"<p>The {max_figures} worst are drawn; the table lists all.</p>")
+        for r in bad[:max_figures]:
+            if r["filled_frames"] == 0:
+                continue
+            png = gap_figure(X, F, std, r, partners=partners_of.get(r["j"], []),
+                             distance=distance, spread=spread, labels=labels, units=units,
+                             first_frame=first_frame)
+            parts.append(f"<figure id='gap-{r['j']}-{r['start']}'><img alt='{esc(r['marker'])}' "
+                         f"src='data:image/png;base64,{png}'><figcaption><b>{esc(r['marker'])}"
+                         f"</b> frames {r['first_frame']}-{r['last_frame']}: <b>{r['verdict']}"
+                         f"</b> — {esc('; '.join(r['reasons']))}</figcaption></figure>")
+    cols = [("marker", "marker", "l"), ("first_frame", "first frame", ""),
+            ("last_frame", "last frame", ""), ("frames", "frames", ""), ("kind", "kind", "l"),
+            ("est_rmse", f"est. RMS error ({u})", ""), ("max_step", f"max step ({u})", ""),
+            ("rigid_ratio", "rigid deviation (x spread)", ""),
+            ("rigid_dev", f"rigid deviation ({u})", ""), ("support", "spatial support (%)", ""),
+            ("unfilled", "unfilled frames", ""), ("verdict", "verdict", "l v"),
+            ("reasons", "reasons", "l")]
+    parts.append("<h2>All gaps</h2><p>Click a column head to sort.</p>"
+                 "<table class='sortable'><thead><tr>"
+                 + "".join(f"<th>{head}</th>" for _, head, _ in cols) + "</tr></thead><tbody>")
+    for r in sorted(rows, key=lambda r: (_ORDER[r["verdict"]], r["j"], r["start"])):
+        cells = []
+        for key, _, cls in cols:
+            v = r[key]
+            if key == "support":
+                v = 100.0 * v
+            if key == "reasons":
+                v = "; ".join(v)
+            if key == "verdict":
+                sort = _ORDER[v]
+            elif key == "marker":
+                sort = v
+            else:
+                sort = v if isinstance(v, str) else (v if v is not None and np.isfinite(v) else "")
+            cells.append(f"<td class='{cls}' data-v='{esc(str(sort))}'>"
+                         f"{esc(v if isinstance(v, str) else _fmt(v, 4))}</td>")
+        parts.append(f"<tr class='{r['verdict']}'>{''.join(cells)}</tr>")
+    parts.append(f"</tbody></table><script>{_SORT_JS}</script></body></html>")
+    return "\n".join(parts)
