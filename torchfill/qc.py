@@ -88,22 +88,32 @@ class Thresholds:
     rigid_reject: float
     volume: tuple           # (lo, hi) per axis
     extrapolated_s: float
+    rate: float = math.nan  # frames per second (the extrapolation test counts frames)
+    dims: int = 3
+
+    def extrapolated_frames(self) -> int:
+        """``extrapolated_s`` in frames, rounded as ``fill()`` rounds its ``extrapolate``."""
+        return int(round(self.extrapolated_s * self.rate)) if np.isfinite(self.rate) else 0
 
     def lines(self) -> list[str]:
         """The thresholds as text, in the file's units."""
         u = self.units
-        est = (f"estimated RMS error > {self.est_check:.4g} {u} and > {EST_RELATIVE:g} x the "
-               f"median gap estimate ({self.est_relative:.4g} {u}): check; > "
-               f"{self.est_reject:.4g} {u}: reject")
-        return [est,
-                f"one-frame step >= {self.step_at:.4g} {u} ({STEP_AT_CAP:g} x the step cap "
-                f"{self.step_cap:.4g} {u}): check; above the cap: reject",
-                f"rigid-partner distance off by > {self.rigid_check:g} x the pair's observed "
-                f"spread: check; > {self.rigid_reject:g} x: reject",
-                f"filled samples at or beyond the observed volume (+{VOLUME_MARGIN:.0%} margin): "
-                "check",
-                f"trial-end frames filled without spatial support (< {MIN_PARTNERS} rigid partners "
-                f"seen) for > {self.extrapolated_s:g} s: check; wholly unfilled gap: reject"]
+        median = (f"{self.est_relative:.4g} {u}" if np.isfinite(self.est_relative)
+                  else "unknown")
+        out = [f"estimated RMS error > {self.est_check:.4g} {u} and > {EST_RELATIVE:g} x the "
+               f"median gap estimate ({median}): check; > {self.est_reject:.4g} {u}: reject",
+               f"one-frame step >= {self.step_at:.4g} {u} ({STEP_AT_CAP:g} x the step cap "
+               f"{self.step_cap:.4g} {u}): check; above the cap: reject"]
+        if self.dims == 3:
+            out.append(f"rigid-partner distance off by > {self.rigid_check:g} x the pair's "
+                       f"observed spread: check; > {self.rigid_reject:g} x: reject")
+        support = (f"< {MIN_PARTNERS} rigid partners seen" if self.dims == 3 else
+                   "no spatial model for image keypoints")
+        return out + [f"filled samples at or beyond the observed volume "
+                      f"(+{VOLUME_MARGIN:.0%} margin): check",
+                      f"trial-end frames filled without spatial support ({support}) for > "
+                      f"{self.extrapolated_s:g} s ({self.extrapolated_frames()} frames): check; "
+                      "wholly unfilled gap: reject"]
 
 
 def per_mm(units: str, dims: int = 3, scale: float | None = None) -> float:
@@ -117,13 +127,15 @@ def per_mm(units: str, dims: int = 3, scale: float | None = None) -> float:
     return 1.0
 
 
-def thresholds(units: str, per: float, step_cap: float, bounds, median_est: float) -> Thresholds:
+def thresholds(units: str, per: float, step_cap: float, bounds, median_est: float,
+               rate: float | None = None, dims: int = 3) -> Thresholds:
     """The constants of this module in a recording's units."""
     return Thresholds(units=units, per_mm=per, est_check=EST_CHECK_MM * per,
                       est_relative=EST_RELATIVE * median_est, est_reject=EST_REJECT_MM * per,
                       step_cap=step_cap, step_at=STEP_AT_CAP * step_cap,
                       rigid_check=RIGID_CHECK, rigid_reject=RIGID_REJECT, volume=bounds,
-                      extrapolated_s=EXTRAPOLATED_SECONDS)
+                      extrapolated_s=EXTRAPOLATED_SECONDS,
+                      rate=float(rate) if rate else math.nan, dims=dims)
 
 
 def est_rmse(std, j: int, a: int, b: int, dims: int) -> float:
@@ -169,7 +181,7 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
     if row["extrapolated"]:
         text = (f"{row['extrapolated']} trial-end frame(s) extrapolated in time "
                 f"({row['extrapolated_s']:.3g} s without spatial support)")
-        if row["extrapolated_s"] > th.extrapolated_s:
+        if row["extrapolated"] > th.extrapolated_frames():
             flag(1, text + f" > {th.extrapolated_s:g} s")
         else:
             reasons.append(text)
@@ -237,7 +249,7 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
         rows.append(row)
     ests = [r["est_rmse"] for r in rows if np.isfinite(r["est_rmse"])]
     med = float(np.median(ests)) if ests else math.nan
-    th = thresholds(units, per_mm(units, D, scale), cap, bounds, med)
+    th = thresholds(units, per_mm(units, D, scale), cap, bounds, med, rate, D)
     for row in rows:
         row["verdict"], row["reasons"] = verdict(row, th)
         row["thresholds"] = th
@@ -307,15 +319,17 @@ def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = No
         lines.append("  no error estimate given: verdicts from the plausibility tests only "
                      "(fill --std OUT.csv, then qc --std OUT.csv)")
     width = max(6, min(16, max(len(r["marker"]) for r in rows)))
+    rig = th.dims == 3                                  # no rigid bodies in image keypoints
     lines.append(f"{'marker':<{width}} {'frames':>13} {'len':>5} {'kind':<8} {'est_rmse':>9} "
-                 f"{'max_step':>9} {'rigid_x':>7} {'support':>7}  verdict  reasons")
+                 f"{'max_step':>9} " + (f"{'rigid_x':>7} " if rig else "")
+                 + f"{'support':>7}  verdict  reasons")
     lines.append(f"{'':<{width}} {'(file)':>13} {'':>5} {'':<8} {'(' + u + ')':>9} "
-                 f"{'(' + u + ')':>9} {'spread':>7}")
+                 f"{'(' + u + ')':>9}" + (f" {'spread':>7}" if rig else ""))
     for r in rows:
         lines.append(f"{r['marker'][:width]:<{width}} {r['first_frame']:>6}-{r['last_frame']:<6} "
                      f"{r['frames']:>5} {r['kind']:<8} {r['est_rmse']:>9.3g} {r['max_step']:>9.3g} "
-                     f"{r['rigid_ratio']:>7.3g} {r['support']:>7.0%}  {r['verdict']:<7}  "
-                     f"{'; '.join(r['reasons'])}")
+                     + (f"{r['rigid_ratio']:>7.3g} " if rig else "")
+                     + f"{r['support']:>7.0%}  {r['verdict']:<7}  {'; '.join(r['reasons'])}")
     return "\n".join(lines)
 
 
