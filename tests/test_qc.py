@@ -186,7 +186,7 @@ def test_labels_with_dollars_reach_the_report_literally(tmp_path):
     names = ["a$b$c", "$\\frac{1}{0$", "_hidden", "x^2_{y}", "<i>&x", "ok"]
     rows = qc.gap_table(gappy, filled, 100.0, names)
     page = qc.html_report(gappy, filled, rows, title="t$1$", rate=100.0, units="mm", names=names)
-    assert page.count("data:image/png;base64,") == 1
+    assert page.count("<figure") == 1 and "<svg" in page
     assert "$\\frac{1}{0$" in page or "$\\frac{1}{0$".replace("<", "&lt;") in page
     assert "<i>&x" not in page and "&lt;i&gt;&amp;x" in page
 
@@ -207,7 +207,7 @@ def test_report_is_self_contained_and_renders_in_a_headless_browser(recording, t
         assert remote not in page.replace("http://www.w3.org/2000/svg", "")
     n_bad = sum(1 for line in page.splitlines() if line.startswith("<figure"))
     assert n_bad == min(sum(1 for r in page.split("<tr class='")[1:]
-                            if not r.startswith("ok")), 80)
+                            if not r.startswith("ok")), 200)
     browser = shutil.which("chromium") or shutil.which("chromium-headless-shell")
     if browser is None:
         pytest.skip("no headless chromium to render the report")
