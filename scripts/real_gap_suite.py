@@ -125,6 +125,23 @@ def cases(folder: Path | None = None, seeds: int = 1) -> list[Case]:
     return out
 
 
+def mask_suite(folder: Path, data: Path | None = None) -> list[Case]:
+    """The cases written by scripts/mask_suite.py (simulated gaps: the papers' protocols, dense
+    clustered occlusions, blackouts), as MarkerSequences with the recording's labels and rate."""
+    import json
+    data = data or data_dir(REPO)
+    out = []
+    for c in json.loads((folder / "cases.json").read_text()):
+        with np.load(folder / f"{c['name']}.npz") as z:
+            truth, mask = np.array(z["truth"]), np.array(z["mask"])
+            rec, markers = str(z["recording"]), [int(i) for i in z["markers"]]
+        seq = torchfill.read(next(data.glob(f"{rec}.*")))
+        seq = in_mm(seq).select(markers)
+        seq = seq.with_points(truth)
+        out.append(Case(c["name"], seq, mask, "mask_suite", rec, c.get("kind", "")))
+    return out
+
+
 def per_gap(filled, std, truth, mask):
     """Per marker-gap: (real RMS 3-D error, mean estimated std per coordinate)."""
     err = np.linalg.norm(filled - truth, axis=2)
@@ -228,9 +245,12 @@ def main() -> None:
     ap.add_argument("--only", help="comma-separated substrings of case names to run")
     ap.add_argument("--seeds", type=int, default=1, help="seeds of the assignment and offset")
     ap.add_argument("--list", action="store_true", help="list the cases and stop")
+    ap.add_argument("--mask-suite", type=Path,
+                    help="run the simulated-gap cases written by scripts/mask_suite.py in this "
+                         "folder instead of the real gap patterns")
     args = ap.parse_args()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    suite = cases(seeds=args.seeds)
+    suite = mask_suite(args.mask_suite) if args.mask_suite else cases(seeds=args.seeds)
     if args.only:
         suite = [c for c in suite if any(s in c.name for s in args.only.split(","))]
     if args.list:

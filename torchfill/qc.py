@@ -19,8 +19,8 @@ per-coordinate std of ``fill(..., return_std=True)``). The tests, each a pure fu
 - **volume**: filled samples at or beyond the observed volume widened by the constraints' margin
   (the constraints clamp onto that bound);
 - **extrapolated in time**: filled frames of a gap touching a trial end without spatial support
-  (fewer than 3 rigid partners observed in that frame), ``check`` when more than
-  ``EXTRAPOLATED_SECONDS``;
+  (no rigid donors from segment-mates, and not a spatial method's fill in a frame with
+  ``SPATIAL_MIN`` markers seen), ``check`` when more than ``EXTRAPOLATED_SECONDS``;
 - **blackout**: frames in which no marker was observed (interpolated in time);
 - frames left unfilled are reported; a gap left wholly unfilled is ``reject``.
 
@@ -35,11 +35,10 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import torch
 
 from . import metrics
-from .constraints import STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN
-from .solvers.rigid import rigid_fill, rigid_pairs
+from .constraints import SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN, rigid_donors
+from .solvers.rigid import index_segments, rigid_pairs
 
 # The constants below were chosen with scripts/calibrate_qc.py on its own cases (the tennis file
 # and 12 real masks laid onto complete recordings; 1 189 gaps) and checked on the held-out
@@ -66,8 +65,6 @@ EXTRAPOLATED_SECONDS = 0.25
 #: Median pairwise marker distance of an adult full-body marker set (mm; HDM05, CMU and OpenSim
 #: recordings: 630-690): converts mm thresholds to pixels for image keypoints.
 BODY_SCALE_MM = 650.0
-#: Spatial support: at least this many rigid partners observed in the frame.
-MIN_PARTNERS = 3
 
 VERDICTS = ("ok", "check", "reject")
 _PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001}
@@ -107,8 +104,9 @@ class Thresholds:
         if self.dims == 3:
             out.append(f"rigid-partner distance off by > {self.rigid_check:g} x the pair's "
                        f"observed spread: check; > {self.rigid_reject:g} x: reject")
-        support = (f"< {MIN_PARTNERS} rigid partners seen" if self.dims == 3 else
-                   "no spatial model for image keypoints")
+        support = ("no rigid donors, nor a spatial method with >= "
+                   f"{SPATIAL_MIN} markers seen in the frame" if self.dims == 3 else
+                   f"no spatial method with >= {SPATIAL_MIN} keypoints seen in the frame")
         return out + [f"filled samples at or beyond the observed volume "
                       f"(+{VOLUME_MARGIN:.0%} margin): check",
                       f"trial-end frames filled without spatial support ({support}) for > "
@@ -193,14 +191,17 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
 
 
 def gap_table(points, filled, rate: float | None = None, names=None, std=None, *,
-              units: str = "mm", first_frame: int = 0, support=None) -> list[dict]:
+              units: str = "mm", first_frame: int = 0, support=None, spatial: bool = False,
+              segments=None) -> list[dict]:
     """One row per gap of ``points`` (the input, (T, J, D) with NaN), judged on ``filled`` (the
     fill's output) and ``std`` ((T, J), the fill's error estimate per coordinate, optional).
 
     ``first_frame`` is the file's number of frame 0: rows carry ``first_frame``/``last_frame`` in
-    the file's numbering and ``start``/``stop`` as indices (``stop`` exclusive). ``support``
-    (T, J) bool, optional: samples a spatial model filled from markers seen in the same frame
-    (default: those with >= ``MIN_PARTNERS`` rigid partners observed). Each row has ``verdict``
+    the file's numbering and ``start``/``stop`` as indices (``stop`` exclusive). A filled sample
+    has spatial support (is not extrapolated in time) where the rigid donors of the constraints
+    fill it (segment-mates, ``segments`` as ``fill()`` takes them), where ``support`` (T, J) says
+    so, or -- with ``spatial`` (the fill came from a method that places markers from the same
+    frame) -- in frames with ``SPATIAL_MIN`` or more markers observed. Each row has ``verdict``
     and ``reasons`` (see :func:`verdict`); ``table_thresholds(rows)`` gives the thresholds.
     """
     X = np.asarray(points, dtype=np.float64)
@@ -210,29 +211,27 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     T, J, D = X.shape
     missing = ~np.isfinite(X).all(axis=2)
     observed = ~missing
-    rigid = ref = spread = None
-    scale = None
-    if observed.any():
-        obs = np.where(observed[..., None], X, np.nan)
-        pairs = rigid_pairs(torch.from_numpy(obs), torch.from_numpy(observed))
+    partners, donors, seg_names, scale = {}, np.zeros((T, J), dtype=bool), {}, None
+    if observed.any() and D == 3:
+        pairs = rigid_pairs(np.where(observed[..., None], X, np.nan), observed)
         scale = pairs.scale
-        if D == 3:
-            rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-            ref = pairs.distance.numpy()
-            wide = pairs.wide.numpy() if pairs.wide is not None else pairs.spread.numpy()
-            spread = np.maximum(np.nan_to_num(wide, nan=np.inf), pairs.tol * pairs.scale)
-            if support is None:
-                _, support = rigid_fill(torch.from_numpy(X), torch.from_numpy(observed), pairs,
-                                        min_partners=MIN_PARTNERS)
-                support = support.numpy()
-    if support is None:
-        support = np.zeros((T, J), dtype=bool)
-    support = np.asarray(support, dtype=bool)
-    if std is not None and rigid is not None:
-        # the constraints replace these samples by the rigid-donor fill, which is used only
-        # where its hold-out error is at most tol x scale (3-D RMS): that bounds their error
+        partners = rigid_partners(pairs)
+        seg = index_segments(segments if segments is not None else
+                             ("auto" if names is not None else "data"), names, X, observed)
+        _, donors = rigid_donors(X, observed, pairs, seg, names)
+        for name, members in seg.items():
+            for m in members:
+                seg_names.setdefault(int(m), []).append(name)
+    elif observed.any():
+        scale = _keypoint_scale(X, observed)
+    support = donors | (np.asarray(support, dtype=bool) if support is not None else False)
+    if spatial:
+        support = support | (observed.sum(axis=1) >= SPATIAL_MIN)[:, None]
+    if std is not None and donors.any():
+        # the constraints put the rigid-donor fill at these samples, used only where its
+        # hold-out error is at most tol x scale (3-D RMS): that bounds their error
         std = np.asarray(std, dtype=np.float64)
-        std = np.where(support & np.isfinite(std),
+        std = np.where(donors & np.isfinite(std),
                        np.minimum(std, pairs.tol * pairs.scale / np.sqrt(D)), std)
     cap = metrics.step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR) \
         if observed.any() else np.inf
@@ -243,8 +242,10 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     for j, a, b in metrics.gap_runs(missing):
         if not observed[:, j].any():
             continue
-        row = _gap_row(X, F, j, a, b, rate, names, rigid, ref, spread, support, bounds, black)
+        row = _gap_row(X, F, j, a, b, rate, names, partners.get(int(j)), support, bounds, black)
         row["est_rmse"] = est_rmse(std, j, a, b, D)
+        if donors[a:b, j].any() and len(seg_names.get(int(j), [])) == 1:
+            row["segment"] = seg_names[int(j)][0]          # the one segment that can hold it
         row["first_frame"], row["last_frame"] = first_frame + a, first_frame + b - 1
         rows.append(row)
     ests = [r["est_rmse"] for r in rows if np.isfinite(r["est_rmse"])]
@@ -260,7 +261,37 @@ def table_thresholds(rows: list[dict]) -> Thresholds | None:
     return rows[0]["thresholds"] if rows else None
 
 
-def _gap_row(X, F, j, a, b, rate, names, rigid, ref, spread, support, bounds, black) -> dict:
+def rigid_partners(pairs) -> dict:
+    """``j -> (k, median distance, spread)`` of each marker's rigid partners (duplicates left
+    out; spread = the 95th percentile of the pair's observed deviations from its median, at least
+    the rigidity tolerance), from the sparse pairs of :func:`~torchfill.solvers.rigid.rigid_pairs`."""
+    keep = np.asarray(pairs.rigid & ~pairs.duplicate, dtype=bool)
+    wide = pairs.wide if pairs.wide is not None else pairs.spread
+    spread = np.maximum(np.nan_to_num(np.asarray(wide, dtype=np.float64), nan=np.inf),
+                        pairs.tol * pairs.scale)
+    out: dict = {}
+    for a, b, d, s in zip(pairs.j[keep], pairs.k[keep], pairs.distance[keep], spread[keep]):
+        for x, y in ((int(a), int(b)), (int(b), int(a))):
+            out.setdefault(x, ([], [], []))
+            out[x][0].append(y)
+            out[x][1].append(d)
+            out[x][2].append(s)
+    return {x: tuple(np.asarray(v) for v in lists) for x, lists in out.items()}
+
+
+def _keypoint_scale(X, observed) -> float:
+    """Median distance between the keypoints of a frame, over up to 200 evenly spaced frames
+    with every keypoint seen (else the frames with the most): the body's size in pixels."""
+    count = observed.sum(axis=1)
+    frames = np.flatnonzero(count == count.max())
+    frames = frames[np.linspace(0, frames.size - 1, min(200, frames.size)).round().astype(int)]
+    P = np.where(observed[frames, :, None], X[frames], np.nan)
+    a, b = np.triu_indices(X.shape[1], 1)
+    d = np.linalg.norm(P[:, a] - P[:, b], axis=2)
+    return float(np.nanmedian(d)) if np.isfinite(d).any() else math.nan
+
+
+def _gap_row(X, F, j, a, b, rate, names, partners, support, bounds, black) -> dict:
     T, D = X.shape[0], X.shape[2]
     seg = F[max(a - 1, 0):min(b + 1, T), j]
     steps = np.linalg.norm(np.diff(seg, axis=0), axis=1)
@@ -276,16 +307,15 @@ def _gap_row(X, F, j, a, b, rate, names, rigid, ref, spread, support, bounds, bl
            "rigid_dev": math.nan, "rigid_ratio": math.nan, "rigid_partner": "",
            "outside": 0, "extrapolated": 0, "extrapolated_s": 0.0,
            "blackout": int(black[a:b].sum()), "segment": None}
-    if rigid is not None and fin.any():
-        partners = np.flatnonzero(rigid[j])
-        if partners.size:
-            d = np.linalg.norm(F[a:b, j][:, None] - F[a:b][:, partners], axis=2)
-            ratio = np.abs(d - ref[j, partners]) / spread[j, partners]
-            if np.isfinite(ratio).any():
-                t, k = np.unravel_index(np.nanargmax(ratio), ratio.shape)
-                row["rigid_ratio"] = float(ratio[t, k])
-                row["rigid_dev"] = float(abs(d[t, k] - ref[j, partners[k]]))
-                row["rigid_partner"] = names[partners[k]] if names is not None else str(partners[k])
+    if partners is not None and fin.any():
+        ks, ref, spread = partners
+        d = np.linalg.norm(F[a:b, j][:, None] - F[a:b][:, ks], axis=2)
+        ratio = np.abs(d - ref) / spread
+        if np.isfinite(ratio).any():
+            t, k = np.unravel_index(np.nanargmax(ratio), ratio.shape)
+            row["rigid_ratio"] = float(ratio[t, k])
+            row["rigid_dev"] = float(abs(d[t, k] - ref[k]))
+            row["rigid_partner"] = names[ks[k]] if names is not None else str(ks[k])
     if fin.any():
         lo, hi = bounds
         P = F[a:b, j][fin]

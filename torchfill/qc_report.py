@@ -16,7 +16,6 @@ import html
 import math
 
 import numpy as np
-import torch
 
 from .solvers.rigid import rigid_pairs
 
@@ -146,11 +145,12 @@ def _runs(ok: np.ndarray):
     return zip(edges[::2], edges[1::2])
 
 
-def gap_figure(X, F, std, row: dict, *, partners, distance, spread, labels, units: str,
+def gap_figure(X, F, std, row: dict, *, partners, labels, units: str,
                first_frame: int = 0) -> str:
     """One gap as inline SVG panels: each coordinate (observed black, the fill dashed blue with its
     +-2 sigma band when ``std`` is known) and the distances to up to 4 rigid partners minus their
-    observed median (each with its +-spread band)."""
+    observed median (each with its +-spread band); ``partners`` = (k, median distance, spread)
+    arrays (:func:`torchfill.qc.rigid_partners`), None: none."""
     T, _, D = X.shape
     j, a, b = row["j"], row["start"], row["stop"]
     pad = max(15, (b - a) // 2)
@@ -180,13 +180,14 @@ def gap_figure(X, F, std, row: dict, *, partners, distance, spread, labels, unit
     legend = ["<span style='color:#000'>&#9473; observed</span>",
               "<span style='color:#1f77b4'>&#9476; fill</span>"
               + (" (band: &#177;2&#963;)" if s is not None and np.isfinite(s).any() else "")]
-    if len(partners):
+    if partners is not None and len(partners[0]):
         series, bands = [], []
-        for i, k in enumerate(partners[:4]):
-            colour = _PARTNER_COLOURS[i]
-            d = np.linalg.norm(F[lo:hi, j] - F[lo:hi, k], axis=1) - distance[j, k]
+        ks, ref, spread = partners
+        for i, n in enumerate(np.argsort(spread, kind="stable")[:4]):   # most rigid first
+            k, colour = ks[n], _PARTNER_COLOURS[i]
+            d = np.linalg.norm(F[lo:hi, j] - F[lo:hi, k], axis=1) - ref[n]
             series.append((d, colour, False))
-            bands.append((np.full(len(t), -spread[j, k]), np.full(len(t), spread[j, k]), colour))
+            bands.append((np.full(len(t), -spread[n]), np.full(len(t), spread[n]), colour))
             legend.append(f"<span style='color:{colour}'>&#9473; {html.escape(str(labels[k]))}"
                           "</span>")
         panels.append(_panel(t, series, title=f"partner distance - median ({units})", gap=gap,
@@ -230,7 +231,7 @@ _CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collaps
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
                 names=None, std=None, first_frame: int = 0, max_figures: int = MAX_FIGURES) -> str:
     """The report page (see the module docstring) for the gap ``rows`` of :func:`qc.gap_table`."""
-    from .qc import summary, table_thresholds
+    from .qc import rigid_partners, summary, table_thresholds
 
     X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
     T, J, D = X.shape
@@ -238,17 +239,10 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
     esc = html.escape
     u = esc(units or "")
     observed = np.isfinite(X).all(axis=2)
-    partners_of, distance, spread = {}, None, None
+    partners_of = {}
     if D == 3 and observed.any():
-        pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], X, np.nan)),
-                            torch.from_numpy(observed))
-        rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-        distance = pairs.distance.numpy()
-        wide = pairs.wide.numpy() if pairs.wide is not None else pairs.spread.numpy()
-        spread = np.maximum(np.nan_to_num(wide, nan=0.0), pairs.tol * pairs.scale)
-        for j in {r["j"] for r in rows}:
-            ks = np.flatnonzero(rigid[j])
-            partners_of[j] = ks[np.argsort(pairs.spread.numpy()[j, ks])]
+        pairs = rigid_pairs(np.where(observed[..., None], X, np.nan), observed)
+        partners_of = rigid_partners(pairs)
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>torchfill qc: "
              f"{esc(title)}</title><style>{_CSS}</style></head><body>",
              f"<h1>torchfill qc: {esc(title)}</h1>"]
@@ -280,9 +274,8 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
         for r in bad[:max_figures]:
             if r["filled_frames"] == 0:
                 continue
-            svg = gap_figure(X, F, std, r, partners=partners_of.get(r["j"], []),
-                             distance=distance, spread=spread, labels=labels, units=units,
-                             first_frame=first_frame)
+            svg = gap_figure(X, F, std, r, partners=partners_of.get(r["j"]), labels=labels,
+                             units=units, first_frame=first_frame)
             parts.append(f"<figure id='gap-{r['j']}-{r['start']}'>{svg}<figcaption><b>"
                          f"{esc(r['marker'])}"
                          f"</b> frames {r['first_frame']}-{r['last_frame']}: <b>{r['verdict']}"
