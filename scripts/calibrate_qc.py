@@ -138,8 +138,10 @@ def filled_case(name, make, cache: Path, refill: bool) -> dict:
 def judged(name: str, d: dict) -> list[dict]:
     """The qc rows of a case plus each gap's true RMS error in mm (NaN where nothing was filled)."""
     units = str(d["units"])
+    from torchfill.solvers import base
+    spatial = bool(getattr(base._REGISTRY.get(str(d["method"])), "spatial", False))
     rows = qc.gap_table(d["points"], d["filled"], float(d["rate"]), list(d["labels"]),
-                        std=d["std"], units=units)
+                        std=d["std"], units=units, spatial=spatial)
     F, truth = d["filled"], d["truth"]
     for r in rows:
         j, a, b = r["j"], r["start"], r["stop"]
@@ -183,7 +185,9 @@ def confusion(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "torchfill_qc_cal"))
+    parser.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "torchfill_qc_cal"),
+                        help="fills are cached here (delete it, or --refill, after the default "
+                             "method changes)")
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--refill", action="store_true")
     parser.add_argument("--rows", action="store_true", help="print every big or flagged gap")

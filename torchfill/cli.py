@@ -119,7 +119,7 @@ def _cmd_fill(args) -> int:
     if args.std:
         _write_std(filled, Path(args.std))
     if args.report or args.report_json:
-        rows = _qc_rows(seq, filled, filled.meta.get("std"))
+        rows = _qc_rows(seq, filled, filled.meta.get("std"), method)
         if args.report:
             _write_report(seq, filled, Path(args.report), str(args.input), rows,
                           filled.meta.get("std"))
@@ -142,7 +142,7 @@ def _cmd_qc(args) -> int:
         raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
                          f"{args.input}'s {seq.points.shape}")
     std = _read_std(Path(args.std), seq) if args.std else filled.meta.get("std")
-    rows = _qc_rows(seq, filled, std)
+    rows = _qc_rows(seq, filled, std, args.method or torchfill.default_method())
     if args.json == "-":
         print(json.dumps(qc.to_json(rows), indent=1))
     else:
@@ -195,12 +195,16 @@ def _read_std(path: Path, seq):
     return table[:, [column[label] for label in seq.labels]]
 
 
-def _qc_rows(seq, filled, std):
+def _qc_rows(seq, filled, std, method: str | None = None):
+    """The qc rows; ``method`` made the fill (a spatial one's trial-end fills in frames with
+    enough markers seen are not extrapolations in time)."""
     from torchfill import qc
+    from torchfill.solvers import base
 
+    spatial = bool(getattr(base._REGISTRY.get(method or ""), "spatial", False))
     return qc.gap_table(seq.points, filled.points, seq.rate, seq.labels, std,
                         units=seq.units, first_frame=_frame0(seq),
-                        support=filled.meta.get("support"))
+                        support=filled.meta.get("support"), spatial=spatial)
 
 
 def _write_report(seq, filled, path: Path, title: str, rows=None, std=None) -> None:
@@ -543,6 +547,9 @@ def _parser() -> argparse.ArgumentParser:
                    "est_rmse (file units), reasons, segment ('-': print it instead of the table)")
     p.add_argument("--std", metavar="STD.csv",
                    help="the fill's error estimate ('fill --std' output): verdicts use it")
+    p.add_argument("-m", "--method", help="the method that made FILLED (default: the default "
+                   "method); a spatial method's trial-end fills in frames with enough markers "
+                   "seen do not count as extrapolated in time")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_pose_options(p)
     p.set_defaults(run=_cmd_qc)
