@@ -190,6 +190,8 @@ def main() -> None:
                              "method changes)")
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--refill", action="store_true")
+    parser.add_argument("--cached-only", action="store_true",
+                        help="judge only the cases already filled in the cache")
     parser.add_argument("--rows", action="store_true", help="print every big or flagged gap")
     parser.add_argument("--group", choices=("own", "suite", "all"), default="all",
                         help="own: tennis + this script's transplants (the thresholds were chosen "
@@ -199,6 +201,8 @@ def main() -> None:
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
     for name, make in cases(args.only, args.group):
+        if args.cached_only and not (cache / f"{name}.npz").exists():
+            continue
         d = filled_case(name, make, cache, args.refill)
         got = judged(name, d)
         rows += got

@@ -268,7 +268,10 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
                  key=lambda r: (_ORDER[r["verdict"]], -(r["est_rmse"] if np.isfinite(r["est_rmse"])
                                                         else 0.0), -r["frames"]))
     if bad:
-        parts.append(f"<h2>Gaps to check ({len(bad)})</h2>")
+        empty = sum(r["filled_frames"] == 0 for r in bad)
+        parts.append(f"<h2>Gaps to check ({len(bad)})</h2>" + (
+            f"<p>{empty} of them left wholly unfilled (no figure: grey in the overview).</p>"
+            if empty else ""))
         if len(bad) > max_figures:
             parts.append(f"<p>The {max_figures} worst are drawn; the table lists all.</p>")
         for r in bad[:max_figures]:
