@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from .solvers.rigid import rigid_pairs
+from ..solvers.rigid import rigid_pairs
 
 #: Figures at most (the worst gaps first); the table lists every gap.
 MAX_FIGURES = 200
@@ -231,7 +231,7 @@ _CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collaps
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
                 names=None, std=None, first_frame: int = 0, max_figures: int = MAX_FIGURES) -> str:
     """The report page (see the module docstring) for the gap ``rows`` of :func:`qc.gap_table`."""
-    from .qc import rigid_partners, summary, table_thresholds
+    from . import rigid_partners, summary, table_thresholds
 
     X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
     T, J, D = X.shape

@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from . import metrics
-from .constraints import SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN, rigid_donors
-from .solvers.rigid import index_segments, rigid_pairs
+from .. import metrics
+from ..constraints import SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN, rigid_donors
+from ..solvers.rigid import index_segments, rigid_pairs
 
 # The constants below were chosen with scripts/calibrate_qc.py on its own cases (the tennis file
 # and 12 real masks laid onto complete recordings: 1 189 gaps, 1 023 of them filled) and checked
@@ -396,7 +396,7 @@ def thresholds_json(rows: list[dict]) -> dict | None:
 
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
                 names=None, std=None, first_frame: int = 0, **kwargs) -> str:
-    """The self-contained HTML report (see :mod:`torchfill.qc_report`)."""
-    from .qc_report import html_report as build
+    """The self-contained HTML report (see :mod:`torchfill.qc.report`)."""
+    from .report import html_report as build
     return build(points, filled, rows, title=title, rate=rate, units=units, names=names,
                  std=std, first_frame=first_frame, **kwargs)
