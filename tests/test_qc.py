@@ -256,3 +256,19 @@ def test_qc_and_fill_report_on_openpose_folders_speak_pixels(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "thresholds (px)" in text and "rigid" not in text
     assert "3 gaps: 3 ok" in text
+
+
+def test_a_short_gap_filled_off_its_interpolation_is_flagged_whatever_the_estimate():
+    """An interior gap of 0.05 s: the interpolation across it errs by far less than a mm; a fill
+    20 mm off it is ``check`` even when its own estimate says 0.1 mm."""
+    X = loose()
+    gappy = X.copy()
+    gappy[100:105, 2] = gappy[200:205, 3] = np.nan
+    filled = X.copy()
+    filled[100:105, 2] += np.array([20.0, 0.0, 0.0])
+    std = np.where(np.isnan(gappy).any(axis=2), 0.1, np.nan)
+    rows = rows_by_start(qc.gap_table(gappy, filled, 100.0, std=std, units="mm"))
+    off, fine = rows[("2", 100)], rows[("3", 200)]
+    assert off["verdict"] == "check" and any("interpolation" in r for r in off["reasons"])
+    assert off["disagree"] == pytest.approx(20.0, rel=0.05)
+    assert fine["verdict"] == "ok" and fine["disagree"] < 1.0
