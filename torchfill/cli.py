@@ -103,7 +103,7 @@ def _cmd_fill(args) -> int:
     seq = torchfill.read(args.input, **_pose_options(args))
     out_path = Path(args.output) if args.output else _default_output(Path(args.input))
     torchfill.io.check_target(out_path)                 # refuse now, not after the fill
-    params = _parse_params(args.param) | _window(args) | _dtype(args)
+    params = {"params": _parse_params(args.param)} | _window(args) | _dtype(args)   # -p: the method's
     if args.training:
         params["training"] = [torchfill.read(path) for path in args.training]
     method = torchfill.default_method() if args.method is None else args.method
@@ -237,7 +237,7 @@ def _cmd_fill_batch(args) -> int:
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    params = _parse_params(args.param) | _window(args) | _dtype(args)
+    params = {"params": _parse_params(args.param)} | _window(args) | _dtype(args)   # -p: the method's
     if not args.constraints:
         params["constraints"] = False
     jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
@@ -282,7 +282,7 @@ def _cmd_evaluate(args) -> int:
         params = _parse_params(args.param) if len(methods) == 1 else {}
         with _naming(args.input):   # scored everywhere: no extrapolation limit
             filled = torchfill.fill(incomplete, method, progress=_progress(args),
-                                    extrapolate=None, **params)
+                                    extrapolate=None, params=params)
         _clear_progress(args)
         info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)

@@ -1,9 +1,20 @@
 """Independent pieces of torch work (the windows of a long recording, ``auto``'s candidates) run
 in threads that share torch's intra-op threads out: torch's kernels release the GIL, and one fit's
 small products keep a second core mostly idle (bench_long 120 000 frames on 2 cores: 96 s one
-window at a time with 2 threads, 52-59 s two at a time with one each)."""
+window at a time with 2 threads, 52-59 s two at a time with one each).
+
+The share is set **per worker thread** (OpenMP's thread count is a per-thread setting), never with
+``torch.set_num_threads``: that also changes the count every thread started later begins with,
+which the rest of the caller's program would see while a fill runs. Where no OpenMP runtime can be
+reached (a torch built without it), the workers run with the count they inherit.
+"""
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
+import glob
+import os
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
@@ -15,12 +26,31 @@ import torch
 _INSIDE = threading.local()
 
 
+@functools.lru_cache(maxsize=1)
+def _omp_set_num_threads() -> Callable[[int], Any] | None:
+    """``omp_set_num_threads`` of the OpenMP runtime torch runs on (it sets the calling thread's
+    team size only), or None."""
+    candidates = [None]                                   # already in the process's global scope
+    lib = os.path.join(os.path.dirname(torch.__file__), "lib")
+    candidates += sorted(glob.glob(os.path.join(lib, "libgomp*")) + glob.glob(os.path.join(lib, "libiomp*")))
+    candidates += [ctypes.util.find_library(n) for n in ("gomp", "iomp5", "omp")]
+    for path in candidates:
+        try:
+            fn = getattr(ctypes.CDLL(path), "omp_set_num_threads")
+        except (OSError, AttributeError, TypeError):
+            continue
+        fn.argtypes, fn.restype = [ctypes.c_int], None
+        return fn
+    return None
+
+
 def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None) -> Iterator:
     """``fn(item)`` for every item, yielded in the items' order whatever finishes first.
 
-    ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each thread on
-    ``torch.get_num_threads() // workers`` intra-op threads (restored afterwards); with one worker,
-    one item or inside another ``thread_map``, in this thread. The caller's warning filters are
+    ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each worker thread
+    on ``torch.get_num_threads() // workers`` intra-op threads, set in that thread only (no
+    process-wide change: other threads of the program keep their count); with one worker, one
+    item or inside another ``thread_map``, in this thread. The caller's warning filters are
     restored afterwards: ``warnings.catch_warnings`` in two threads at once can leave them changed.
     """
     items = list(items)
@@ -29,14 +59,15 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
     if workers <= 1 or getattr(_INSIDE, "active", False):
         yield from map(fn, items)
         return
+    share = max(1, threads // workers)
+    set_threads = _omp_set_num_threads()
 
     def run(item):
         _INSIDE.active = True
+        if set_threads is not None:
+            torch.get_num_threads()      # torch's lazy per-thread start first (it would reset it)
+            set_threads(share)
         return fn(item)
 
-    torch.set_num_threads(threads // workers)
-    try:
-        with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
-            yield from pool.map(run, items)
-    finally:
-        torch.set_num_threads(threads)
+    with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
+        yield from pool.map(run, items)

@@ -404,6 +404,8 @@ class Rigid(Solver):
         "segments": Param(None, dict, allow_none=True,
                           doc="segment name -> marker indices (None: found from the data)"),
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
+        "fallback": Param(True, bool, doc="PCHIP where fewer mates are seen (False: leave NaN "
+                                          "there, as auto's candidate does)"),
     }
 
     def _initialize(self) -> None:
@@ -417,14 +419,18 @@ class Rigid(Solver):
         est, std, self.segment_of_ = segment_fill(X.cpu().numpy(), seen.cpu().numpy(), segments,
                                                   min_mates=self.min_partners)
         done = torch.from_numpy(np.isfinite(est).all(axis=2)).to(seen.device)
-        self.rigid_done_, self.std_ = done, torch.from_numpy(std).to(self.M_)
+        self.rigid_done_ = done
+        self.std_ = torch.from_numpy(std).to(self.M_) * self.sigma_        # in the data's units
         R = torch.from_numpy(est).to(self.M_)
         T = X.shape[0]
-        base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
+        if self.fallback:
+            base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
+        else:
+            base = torch.full_like(self.M_, float("nan"))
         self.X_ = torch.where(done[..., None], R, base.reshape(self.M_.shape))
         missing = int((~seen).sum())
         fallback = missing - int(done.sum())
-        if fallback:
+        if fallback and self.fallback:
             warnings.warn(f"rigid: {fallback} of {missing} missing samples have fewer than "
                           f"{self.min_partners} segment-mates observed: filled by PCHIP",
                           UserWarning, stacklevel=2)
