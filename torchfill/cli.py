@@ -165,8 +165,8 @@ def _frame0(seq) -> int:
 
 
 def _read_filled(path, args):
-    """A filled recording; an OpenPose folder counts its filled keypoints (confidence 0 but
-    coordinates written) as filled, not missing."""
+    """A filled recording; an OpenPose folder's filled keypoints are read as points (also those
+    of folders filled before they were marked: confidence 0, coordinates written)."""
     import torchfill
 
     if Path(path).is_dir():
