@@ -211,6 +211,7 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
     queue = deque((job, 1) for job in jobs)
     idle: list[tuple] = []
     busy: dict[int, tuple] = {}                     # pid -> (process, conn, job, attempt)
+    started: list[tuple] = []                       # every worker, whatever its state
 
     def start():
         parent, child = ctx.Pipe()
@@ -218,6 +219,7 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
             proc = ctx.Process(target=_worker, args=(child,), daemon=True)
             proc.start()
         child.close()
+        started.append((proc, parent))
         return proc, parent
 
     def died(proc, job, attempt):
@@ -278,8 +280,8 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
                     idle.append(start())
                 if row is not None:
                     yield row
-    finally:
-        _stop([(p, c) for p, c, *_ in busy.values()], idle)
+    finally:               # a worker handed a job a moment ago may be in neither list: all go
+        _stop([w for w in started if w not in idle], idle)
         for proc, conn, job, attempt in busy.values():
             for path in (job.output, job.report, job.std):
                 if path:
@@ -295,17 +297,21 @@ def _stop(running: list[tuple], idle: list[tuple]) -> None:
         except OSError:
             pass
     for proc, conn in running:
-        if proc.is_alive():
+        if proc.exitcode is None:
             proc.terminate()
     deadline = time.monotonic() + STOP_GRACE
     everyone = running + idle
     for proc, conn in everyone:
-        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.exitcode is None:
+            proc.join(max(0.0, deadline - time.monotonic()))
     for proc, conn in everyone:
-        if proc.is_alive():
+        if proc.exitcode is None:
             proc.kill()
             proc.join()
-        conn.close()
+        try:
+            conn.close()
+        except OSError:
+            pass
 
 
 def _death(code) -> str:

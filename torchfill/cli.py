@@ -309,7 +309,7 @@ def _fill_options(args, src) -> tuple[str, dict]:
     cls = base._REGISTRY[method]
     declared = [*cls.declared_params(), *cls._merged("renamed")]
     for key in params:
-        if key in _FILL_OPTIONS:
+        if key in _FILL_OPTIONS and key not in declared:     # pma's own window is -p window=
             raise ValueError(f"{src}-p {key}: a fill option, give it as --{key.replace('_', '-')}")
         if key not in declared:
             close = difflib.get_close_matches(key, declared, n=1)

@@ -274,7 +274,8 @@ def _solver_params(method: str, params: dict | None, training, legacy: dict,
     if window_given and "window" in declared and "window" not in params:
         raise ValueError(f"window is both fill()'s (frames solved at once) and a hyperparameter "
                          f"of {method} ({declared['window'].doc}); give {method}'s in params "
-                         f"(params={{'window': ...}}), and name it there too to set only fill()'s")
+                         f"(params={{'window': ...}}; CLI: -p window=...), and name it there too "
+                         f"to set only fill()'s")
     return params, training
 
 

@@ -26,22 +26,33 @@ import torch
 _INSIDE = threading.local()
 
 
+def _find(symbol: str, candidates: list) -> Callable[[int], Any] | None:
+    for path in candidates:
+        try:
+            fn = getattr(ctypes.CDLL(path), symbol)
+        except (OSError, AttributeError, TypeError):
+            continue
+        fn.argtypes = [ctypes.c_int]
+        return fn
+    return None
+
+
 @functools.lru_cache(maxsize=1)
 def _omp_set_num_threads() -> Callable[[int], Any] | None:
     """``omp_set_num_threads`` of the OpenMP runtime torch runs on (it sets the calling thread's
     team size only), or None."""
-    candidates = [None]                                   # already in the process's global scope
     lib = os.path.join(os.path.dirname(torch.__file__), "lib")
+    candidates = [None]                                   # already in the process's global scope
     candidates += sorted(glob.glob(os.path.join(lib, "libgomp*")) + glob.glob(os.path.join(lib, "libiomp*")))
     candidates += [ctypes.util.find_library(n) for n in ("gomp", "iomp5", "omp")]
-    for path in candidates:
-        try:
-            fn = getattr(ctypes.CDLL(path), "omp_set_num_threads")
-        except (OSError, AttributeError, TypeError):
-            continue
-        fn.argtypes, fn.restype = [ctypes.c_int], None
-        return fn
-    return None
+    return _find("omp_set_num_threads", candidates)
+
+
+@functools.lru_cache(maxsize=1)
+def _mkl_set_num_threads_local() -> Callable[[int], Any] | None:
+    """MKL's thread-local thread count (what ``torch.set_num_threads`` sets for MKL), or None."""
+    lib = os.path.join(os.path.dirname(torch.__file__), "lib")
+    return _find("MKL_Set_Num_Threads_Local", [None, *sorted(glob.glob(os.path.join(lib, "libtorch_cpu*")))])
 
 
 def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None) -> Iterator:
@@ -60,12 +71,12 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
         yield from map(fn, items)
         return
     share = max(1, threads // workers)
-    set_threads = _omp_set_num_threads()
+    setters = [f for f in (_omp_set_num_threads(), _mkl_set_num_threads_local()) if f is not None]
 
     def run(item):
         _INSIDE.active = True
-        if set_threads is not None:
-            torch.get_num_threads()      # torch's lazy per-thread start first (it would reset it)
+        torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)
+        for set_threads in setters:      # this thread's OpenMP team and MKL count only
             set_threads(share)
         return fn(item)
 
