@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .constraints import constrain, constrain_candidates
+from .qc import EST_REJECT_MM, per_mm
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
@@ -511,23 +512,21 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     return seq
 
 
-#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above this
-#: many mm is worse than no sample for a user (OpenSim IK, for one, simply skips a missing
-#: marker): with the default policy (``extrapolate`` not None) it is left NaN -- at a trial end
-#: from the first such sample to the end of the trial, inside a trial the whole gap when its RMS
-#: estimate is above it. Calibrated on the real-gap-pattern suite and the IK benchmark
-#: (docs/ik.md, scripts/calibrate_qc.py).
-REJECT_MM = 30.0
-#: Millimetres per unit of the units this policy knows (others, e.g. pixels: no rejection).
-MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above the QC's
+#: reject threshold (``qc.EST_REJECT_MM``) is worse than no sample for a user (OpenSim IK, for
+#: one, simply skips a missing marker): with the default policy (``extrapolate`` not None) it is
+#: left NaN -- at a trial end from the first such sample to the end of the trial, inside a trial
+#: the whole gap when its RMS estimate is above it (docs/ik.md measures what that does to joint
+#: angles).
+REJECT_MM = EST_REJECT_MM
 
 
 def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str) -> int:
     """Leave NaN the filled samples whose error estimate is above ``REJECT_MM`` (see there);
     returns how many were left NaN (one warning says so)."""
-    scale = MM_PER_UNIT.get(str(units).strip().lower())
-    if scale is None or not bool(torch.isfinite(std).any()):
-        return 0
+    if str(units).strip().lower() not in ("mm", "cm", "m") or not bool(torch.isfinite(std).any()):
+        return 0                                    # e.g. pixels: no threshold in mm
+    scale = 1.0 / per_mm(units)
     T = out.shape[0]
     err = (3.0 ** 0.5 * std * scale).cpu().numpy()
     filled = (missing & torch.isfinite(out).all(dim=2)).cpu().numpy()
