@@ -56,3 +56,22 @@ def walk():
         return 500 + 100 * np.sin(2 * np.pi * t + phase) + 30 * np.cos(5 * t + phase)
 
     return _make
+
+
+@pytest.fixture(scope="session")
+def gappy_sample(tmp_path_factory):
+    """The embedded sample with 10 markers' simulated gaps (``gaps.multi_gap``, 60 frames, up to
+    3 each, seed 1), written as a fresh C3D: a small gapped file for CLI and docs tests."""
+    import numpy as np
+
+    import torchfill
+    from torchfill import gaps
+
+    seq = torchfill.read(torchfill.data.sample_path())
+    mask = gaps.multi_gap(seq.n_frames, seq.n_markers, n_markers=10, gap_length=60, max_gaps=3,
+                          seed=1)
+    out = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
+    out.source = None
+    path = tmp_path_factory.mktemp("sample") / "trial.c3d"
+    torchfill.write(out, path)
+    return path

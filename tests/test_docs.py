@@ -37,16 +37,9 @@ def _blocks():
 
 
 @pytest.fixture(scope="module")
-def trial(tmp_path_factory) -> Path:
+def trial(gappy_sample) -> Path:
     """``trial.c3d``: the embedded sample with 10 markers' simulated gaps, as a fresh C3D."""
-    seq = torchfill.read(torchfill.data.sample_path())
-    mask = gaps.multi_gap(seq.n_frames, seq.n_markers, n_markers=10, gap_length=60, max_gaps=3,
-                          seed=1)
-    out = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
-    out.source = None
-    path = tmp_path_factory.mktemp("docs") / "trial.c3d"
-    torchfill.write(out, path)
-    return path
+    return gappy_sample
 
 
 @pytest.fixture(scope="module")

@@ -23,16 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def gappy(tmp_path_factory) -> Path:
+def gappy(gappy_sample) -> Path:
     """The embedded sample with 10 markers' gaps, as a fresh C3D."""
-    seq = torchfill.read(torchfill.data.sample_path())
-    mask = gaps.multi_gap(seq.n_frames, seq.n_markers, n_markers=10, gap_length=60, max_gaps=3,
-                          seed=1)
-    out = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
-    out.source = None
-    path = tmp_path_factory.mktemp("progress") / "gappy.c3d"
-    torchfill.write(out, path)
-    return path
+    return gappy_sample
 
 
 def _env() -> dict:
