@@ -208,8 +208,8 @@ def test_partly_missing_sample_keeps_its_finite_coordinates():
     assert np.isnan(out[5, 1, 0])
 
 
-def test_default_fill_computes_in_float32_and_keeps_float64_observed_samples(recording):
-    """The default method computes in float32 (its ``fill_dtype``): the output is float64, the
+def test_tucker_fill_computes_in_float32_and_keeps_float64_observed_samples(recording):
+    """``tucker_tnn`` computes in float32 (its ``fill_dtype``): the output is float64, the
     observed samples are the input's bit-for-bit, and the error on a real recording stays within
     a bound of the float64 fill's (cmu_02_01, 10 markers x 60 frames: 5.4 vs 7.5 mm here)."""
     seq = torchfill.read(recording("cmu_02_01.c3d"))
@@ -218,11 +218,11 @@ def test_default_fill_computes_in_float32_and_keeps_float64_observed_samples(rec
     given = np.where(mask[..., None], np.nan, P)
     errors = {}
     for dtype in (None, "float64"):
-        out = torchfill.fill(given, dtype=dtype, constraints=False)
+        out = torchfill.fill(given, "tucker_tnn", dtype=dtype, constraints=False)
         assert out.dtype == np.float64
         np.testing.assert_array_equal(out[~mask], P[~mask])
         errors[dtype] = metrics.rmse_missing(out, P, mask)
-    seq_out = torchfill.fill(seq.with_points(given))
+    seq_out = torchfill.fill(seq.with_points(given), "tucker_tnn")
     assert seq_out.meta["fill_info"]["dtype"] == "float32"
     assert errors[None] < 1.5 * errors["float64"] + 1.0                         # mm
 

@@ -227,3 +227,46 @@ def test_empty_shapes_raise(T, J):
     for name in gaps.PROTOCOLS:
         with pytest.raises(ValueError):
             gaps.generate(name, T, J, **{k: v for k, v in KWARGS[name].items() if k == "rate"})
+
+
+# --- real gap patterns laid onto complete recordings ----------------------------------------
+
+def test_transplant_keeps_each_markers_runs_and_their_duration():
+    src = np.zeros((240, 4), dtype=bool)
+    src[:48, 0] = True                      # 0.2 s at 240 Hz, at the trial start
+    src[100:148, 1] = True                  # an interior gap
+    src[:, 3] = True                        # a dead marker: dropped
+    M = gaps.transplant(src, 120, 10, seed=3, rate_ratio=0.5)
+    assert M.shape == (120, 10)
+    lengths = sorted(b - a for _, a, b in gap_runs(M))
+    assert lengths == [24, 24]              # 48 frames at 240 Hz = 24 at 120 Hz
+    starts = sorted(a for _, a, _ in gap_runs(M))
+    assert starts == [0, 50]                # the trial-start gap stays at the start
+    assert M.any(axis=0).sum() == 2
+
+
+def test_transplant_by_layout_sends_markers_to_the_same_place_on_the_body():
+    labels_src = ["LANK", "RANK", "LSHO", "RSHO", "CLAV"]
+    labels_dst = ["C7", "L.Shoulder", "R.Shoulder", "L.Ankle", "R.Ankle", "Sacrum"]
+    body = {"ANK": 50.0, "SHO": 1400.0, "CLAV": 1450.0, "C7": 1500.0, "Ankle": 60.0,
+            "Shoulder": 1420.0, "Sacrum": 950.0}
+    side = {"L": -150.0, "R": 150.0}
+
+    def pose(labels):
+        P = np.zeros((5, len(labels), 3))
+        for j, lab in enumerate(labels):
+            part = next(v for k, v in body.items() if k in lab)
+            P[:, j] = [side.get(lab[0], 0.0) if lab[0] in "LR" else 0.0, 0.0, part]
+        return P + np.arange(5)[:, None, None]
+
+    src = np.zeros((5, 5), dtype=bool)
+    src[1:, 0] = src[:2, 2] = True          # LANK and LSHO have gaps
+    M = gaps.transplant(src, 5, 6, seed=0, source_layout=gaps.body_layout(pose(labels_src), labels_src),
+                        target_layout=gaps.body_layout(pose(labels_dst), labels_dst))
+    assert M[1:, labels_dst.index("L.Ankle")].all()
+    assert M[:2, labels_dst.index("L.Shoulder")].all() and M.sum() == 4 + 2
+
+
+def test_transplant_refuses_a_pattern_shorter_than_the_recording():
+    with pytest.raises(ValueError, match="cut the target"):
+        gaps.transplant(np.ones((10, 2), dtype=bool) & False | np.eye(10, 2, dtype=bool), 20, 3)

@@ -57,6 +57,9 @@ SOFT_ITER = 10
 SOFT_WIDE = 3.0
 #: Soft distances are projected on this many (frame, pair) entries at a time.
 SOFT_BLOCK = 1 << 18
+#: Observed markers a frame needs for a spatial method's trial-end fill there not to count as an
+#: extrapolation in time (three markers fix a rigid body's pose).
+SPATIAL_MIN = 3
 #: Share of the observed per-axis range a fill may lie outside it.
 VOLUME_MARGIN = 0.1
 #: A fill's one-frame step may not exceed STEP_FACTOR x this percentile of the observed steps
@@ -86,7 +89,8 @@ class ConstraintReport:
 
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
               names=None, pairs: RigidPairs | None = None,
-              donors: tuple[np.ndarray, np.ndarray] | None = None
+              donors: tuple[np.ndarray, np.ndarray] | None = None, segments=None,
+              spatial: bool = False
               ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
@@ -107,6 +111,13 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     donors : (array (T, J, D), bool array (T, J)), optional
         Precomputed :func:`rigid_donors` of the same observed samples (they do not depend on the
         fill: ``auto`` constrains every candidate's fill with one).
+    segments : optional
+        The segments the rigid donors come from (see :func:`rigid_donors`).
+    spatial : bool
+        The fill comes from a method that places a marker from the markers seen in the same
+        frame (``auto``, the PMA family, Gløersen PCA): a trial-end sample in a frame with at least
+        ``SPATIAL_MIN`` observed markers is not an extrapolation in time, and the
+        ``extrapolate`` limit does not cut it (the fill's error estimate judges it instead).
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
@@ -117,9 +128,9 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     done = np.zeros_like(missing)
     if F.shape[2] == 3:             # 2-D keypoints are projections: no rigid segments to keep
         if pairs is None:
-            pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], F, np.nan)),
-                                torch.from_numpy(observed))
-        R, done = donors if donors is not None else rigid_donors(F, observed, pairs)
+            pairs = rigid_pairs(np.where(observed[..., None], F, np.nan), observed)
+        R, done = donors if donors is not None else rigid_donors(F, observed, pairs, segments,
+                                                                 names)
         done = done & missing
         F[done] = R[done]
         del R                           # long recordings: a full-length copy fewer from here
@@ -128,7 +139,8 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     if long is not None:
         report.long_gaps = [(j, a, b) for j, a, b in gap_runs(free) if b - a > long
                             and observed[:, j].any()]
-    _limit_extrapolation(F, free, extrapolate, report)
+    support = observed.sum(axis=1) >= SPATIAL_MIN if spatial else np.zeros(len(F), dtype=bool)
+    _limit_extrapolation(F, free, extrapolate, report, support)
     _interpolate_blackouts(F, observed, free, report)
     free &= np.isfinite(F).all(axis=2)
     _blend_edges(F, free)
@@ -142,11 +154,16 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     return F, report
 
 
-def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs) -> tuple[np.ndarray, np.ndarray]:
+def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs | None = None, segments=None,
+                 names=None) -> tuple[np.ndarray, np.ndarray]:
     """Step 1's rigid-body fill from the ``observed`` samples of ``filled`` (T, J, 3): the fill
-    (NaN where no donors) and the (T, J) samples it fills."""
-    X = torch.from_numpy(np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan))
-    R, done = rigid_fill(X, torch.from_numpy(observed), pairs)
+    (NaN where no donors) and the (T, J) samples it fills. The donors are segment-mates
+    (:func:`torchfill.solvers.rigid.rigid_fill`): ``segments`` as ``fill()`` resolved them (name
+    -> marker indices), else the name tables when ``names`` fit them, else found from the data."""
+    X = np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan)
+    if segments is None:
+        segments = "auto" if names is not None else "data"
+    R, done = rigid_fill(X, observed, pairs, segments, names)
     return R.numpy(), done.numpy()
 
 
@@ -155,8 +172,9 @@ def _runs(mask: np.ndarray, T: int):
         yield j, a, b, a == 0, b == T
 
 
-def _limit_extrapolation(F, free, extrapolate, report) -> None:
-    """Keep at most ``extrapolate`` frames of a trial-end gap next to its observed edge."""
+def _limit_extrapolation(F, free, extrapolate, report, support) -> None:
+    """Keep at most ``extrapolate`` frames of a trial-end gap next to its observed edge, besides
+    the frames with spatial ``support`` (T,)."""
     T = F.shape[0]
     for j, a, b, at_start, at_end in _runs(free, T):
         if not (at_start or at_end) or (at_start and at_end):
@@ -164,7 +182,8 @@ def _limit_extrapolation(F, free, extrapolate, report) -> None:
         report.extrapolated_gaps.append((j, a, b))
         if extrapolate is None or b - a <= extrapolate:
             continue
-        drop = slice(a, b - extrapolate) if at_start else slice(a + extrapolate, b)
+        drop = np.arange(a, b - extrapolate) if at_start else np.arange(a + extrapolate, b)
+        drop = drop[~support[drop]]
         report.unfilled_extrapolation += int(np.isfinite(F[drop, j]).all(axis=1).sum())
         F[drop, j] = np.nan
 
@@ -218,16 +237,17 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
     """Move free filled samples towards their rigid partners' distances (Jacobi projection).
     Frames are independent: only those with a free pair member are projected, a block at a time
     (memory bounded for any length)."""
-    rigid = (pairs.rigid & ~pairs.duplicate).cpu().numpy()
-    band = SOFT_BAND * pairs.spread.cpu().numpy()
+    rigid = pairs.rigid & ~pairs.duplicate
+    band = SOFT_BAND * pairs.spread
     if pairs.wide is not None:      # pairs whose observed distances stay near that band
         floor = pairs.tol * pairs.scale     # a still pair's tiny MAD is not its motion's band
-        rigid &= pairs.wide.cpu().numpy() <= SOFT_WIDE * np.maximum(band, floor)
-    j, k = np.nonzero(np.triu(rigid, 1))
+        with np.errstate(invalid="ignore"):
+            rigid &= pairs.wide <= SOFT_WIDE * np.maximum(band, floor)
+    j, k = pairs.j[rigid], pairs.k[rigid]
     if j.size == 0:
         return
-    d0 = pairs.distance.cpu().numpy()[j, k]
-    band = band[j, k]
+    d0 = pairs.distance[rigid]
+    band = band[rigid]
     rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
     size = max(1, SOFT_BLOCK // j.size)
     for a in range(0, rows.size, size):
@@ -331,3 +351,38 @@ def _warn(report: ConstraintReport, names) -> None:
         warnings.warn(f"{report.blackout_frames} frame(s) with no marker observed: interpolated in "
                       "time from the fill around them, not reconstructed", RiskyFillWarning,
                       stacklevel=3)
+
+
+def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Several candidate fills of one recording through the post-step, as ``auto`` scores them.
+
+    ``fills`` (C, T, J, D): each candidate's fill; ``missing`` (T, J): the samples each may change
+    (no extrapolation limit). Returns the constrained fills (a candidate's own value where the
+    post-step left NaN) and the (T, J) samples that rigid donors fill: those depend on the
+    observed samples only, so the rigid pairs and donors are found once for all candidates, and
+    the candidates are constrained in threads (numpy lets go of the GIL for most of it).
+    ``fill()`` passes this function to ``auto`` as its ``post`` fit data.
+    """
+    from . import ops
+
+    donor = torch.zeros_like(missing)
+    if fills.shape[0] == 0:
+        return fills, donor
+    miss = missing.cpu().numpy()
+    pairs = donors = None
+    if fills.shape[-1] == 3:
+        X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
+        pairs = rigid_pairs(X, ~missing.cpu())
+        donors = rigid_donors(X.numpy(), ~miss, pairs)
+
+    def one(F: torch.Tensor):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
+    done = list(ops.thread_map(one, fills))
+    if done[-1][1].rigid_done is not None:
+        donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)
+    out = torch.stack([torch.from_numpy(G) for G, _ in done]).to(device=fills.device,
+                                                                   dtype=fills.dtype)
+    return torch.where(torch.isfinite(out), out, fills), donor

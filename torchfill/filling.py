@@ -10,12 +10,11 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from .constraints import constrain
+from .constraints import constrain, constrain_candidates
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
-from .solvers.auto import holdout_std
 
 _LOCK = threading.Lock()
 
@@ -23,12 +22,11 @@ _LOCK = threading.Lock()
 LONG_GAP_SECONDS = 10.0
 
 #: Preferred default, best first; the first registered one is used when ``method`` is not given.
-#: ``auto`` is not (yet) the default: it is the more accurate fill on simulated gaps (19-case mask
-#: suite, constraints on: mean 3.63 mm vs tucker_tnn 7.51, pma 4.21) and about as good on the real
-#: gaps of ktk_tennis_serve_nan (7.35 vs 7.21 mm), but it costs 4-5x tucker_tnn's time (226 vs
-#: 46 s over the suite), which long recordings cannot afford yet (README: "auto", "Long
-#: recordings").
-DEFAULT_METHODS = ("tucker_tnn", "tucker", "pchip")
+#: ``auto``: per gap, the candidate methods that fill gaps of that kind best on the recording's
+#: own observed data (spatial models at trial ends and for groups of missing markers, rigid
+#: segments where three segment-mates are seen, low-rank and interpolation inside), with its error
+#: estimate (see torchfill/solvers/auto.py; numbers in docs/real-gaps.md).
+DEFAULT_METHODS = ("auto", "tucker_tnn", "tucker", "pchip")
 
 
 class UnfilledWarning(UserWarning):
@@ -47,7 +45,7 @@ def default_method() -> str:
 def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
          window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
          constraints: bool = True, extrapolate: float | None = 0.25, return_std: bool = False,
-         dtype=None, workers: int | None = None, **params):
+         dtype=None, workers: int | None = None, segments=None, **params):
     """Fill the gaps of a recording.
 
     Parameters
@@ -94,6 +92,12 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         :func:`torchfill.ops.thread_map`). The first window runs alone and the fills blend in
         window order, so a fill does not depend on which window finishes first; it does depend on
         the threads per window, which change how float32 sums round (accuracy the same).
+    segments : optional
+        Which markers move together (see :mod:`torchfill.segments`): a dict segment name ->
+        marker labels, a path to a segments YAML file (``torchfill info --segments`` prints one),
+        ``"names"`` (the built-in marker-set tables), ``"data"`` (near-rigid clusters found in the
+        recording) or None (the tables when the labels fit them, else found from the data). Used
+        by the ``rigid`` method and the constraints' rigid donors.
     **params
         Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
         methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
@@ -119,8 +123,6 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
-    if "constraints" in solver.declared_params():     # auto scores fills as they will come out
-        params["constraints"] = constraints
     if training is not None and "training" not in solver.fit_data:
         raise ValueError(f"{method}: takes no training data; methods that do: "
                          f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
@@ -146,9 +148,18 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0,
             "dtype": str(work or points.dtype).removeprefix("torch.")}
     std = torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device)
+    seg_idx = None
+    if bool(todo.any()) and points.shape[2] == 3 and (
+            constraints or segments is not None or "segments" in solver.declared_params()):
+        seg_idx = _segment_indices(segments, data, points, unfit)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
+        if seg_idx is not None and "segments" in solver.declared_params():
+            at = {int(j): i for i, j in enumerate(keep.tolist())}
+            params["segments"] = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
         extra = {}
+        if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
+            extra["post"] = constrain_candidates
         if training is not None:
             extra["training"] = [t.to(work or t.dtype) for t in
                                  _align_training(training, data, keep.tolist(), points.shape[1])]
@@ -157,15 +168,15 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         del points                      # long recordings: hold as few full-length copies as we can
         plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
         start = time.perf_counter()
-        stds = {} if return_std else None
+        stds = {}
         index = {w: k for k, w in enumerate(plan.windows)}
         shown = None if progress is None else lambda a, b: lambda d: progress(
             {"window": index[a, b] + 1, "windows": len(index), **d})     # shown first
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
             method, params, extra, Xk[a:b], unfit[a:b, keep], shown and shown(a, b), info, stds,
-            (a, b), constraints), workers=1 if Xk.device.type != "cpu" else workers)
+            (a, b), constraints, return_std), workers=1 if Xk.device.type != "cpu" else workers)
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
-        if return_std:
+        if len(stds) == len(plan.windows):      # every window has an estimate
             part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
             std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
         del Xk
@@ -177,7 +188,10 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         if not whole:
             out[:, keep] = part
     if constraints and bool(todo.any()):
-        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate)
+        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, seg_idx,
+                                              solver.spatial)
+        if extrapolate is not None and isinstance(data, MarkerSequence):
+            info["rejected"] = _reject(out, std, missing, data.units)
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     result = _as_kind(out, kind, data, info, missing)
@@ -226,13 +240,25 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
     return huge
 
 
-def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate):
-    """The constraints post-step on the fill; coordinates the input had stay bit-for-bit."""
+def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) -> dict:
+    """The segments in use as ``name -> marker indices`` (see :mod:`torchfill.segments`)."""
+    from .solvers.rigid import index_segments
+
+    labels = list(data.labels) if isinstance(data, MarkerSequence) else None
+    X = torch.where(unfit[..., None], torch.nan, points).cpu().numpy()
+    return index_segments(segments, labels, X, ~unfit.cpu().numpy())
+
+
+def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate,
+               segments=None, spatial: bool = False):
+    """The constraints post-step on the fill; coordinates the input had stay bit-for-bit.
+    ``spatial``: the method places markers from the same frame (see ``Solver.spatial``)."""
     rate = data.rate if isinstance(data, MarkerSequence) else None
     frames = None if extrapolate is None or not rate else int(round(extrapolate * rate))
     names = data.labels if isinstance(data, MarkerSequence) else None
     F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
-                          long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names)
+                          long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names,
+                          segments=segments, spatial=spatial)
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
 
@@ -240,7 +266,7 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
 def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
                  progress: Callable[[dict], None] | None, info: dict,
                  stds: dict | None = None, key: tuple[int, int] = (0, 0),
-                 constraints: bool = True) -> torch.Tensor:
+                 constraints: bool = True, holdout: bool = False) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
     steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
@@ -251,13 +277,24 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
     with _LOCK:                                 # windows may be solved in threads
         params.update(solver.carry())           # the next window reuses what this one chose
         info["n_iter"] += solver.n_iter_
-    if stds is not None:
-        est = getattr(solver, "std_", None)
+    est = getattr(solver, "std_", None)
+    if stds is not None and (est is not None or holdout):
         if est is None:
             est = holdout_std(method, params, X, missing, seed=solver.seed,
-                              constraints=constraints, **extra)
+                              post=constrain_candidates if constraints else None, **extra)
         stds[key] = est.to(filled.dtype)
     return filled
+
+
+def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tensor, seed: int = 0,
+                post=None, **data) -> torch.Tensor:
+    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
+    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
+    ``data``: the method's fit data (``training=``); ``post``: the post-step, as fill()'s."""
+    solver = get_solver("auto", candidates=(method,), candidate_params={method: dict(params)},
+                        seed=seed)
+    solver.fit(X, missing, post=post, **data)
+    return solver.std_
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
@@ -324,6 +361,49 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     seq.meta["filled"] = missing.cpu().numpy() & np.isfinite(points).all(axis=2)  # mask= too
     seq.meta["fill_info"] = info
     return seq
+
+
+#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above this
+#: many mm is worse than no sample for a user (OpenSim IK, for one, simply skips a missing
+#: marker): with the default policy (``extrapolate`` not None) it is left NaN -- at a trial end
+#: from the first such sample to the end of the trial, inside a trial the whole gap when its RMS
+#: estimate is above it. Calibrated on the real-gap-pattern suite and the IK benchmark
+#: (docs/ik.md, scripts/calibrate_qc.py).
+REJECT_MM = 30.0
+#: Millimetres per unit of the units this policy knows (others, e.g. pixels: no rejection).
+MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+
+
+def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str) -> int:
+    """Leave NaN the filled samples whose error estimate is above ``REJECT_MM`` (see there);
+    returns how many were left NaN (one warning says so)."""
+    scale = MM_PER_UNIT.get(str(units).strip().lower())
+    if scale is None or not bool(torch.isfinite(std).any()):
+        return 0
+    T = out.shape[0]
+    err = (3.0 ** 0.5 * std * scale).cpu().numpy()
+    filled = (missing & torch.isfinite(out).all(dim=2)).cpu().numpy()
+    count = 0
+    for j, a, b in gap_runs(filled):
+        e = np.nan_to_num(err[a:b, j], nan=0.0)
+        bad = np.flatnonzero(e > REJECT_MM)
+        if bad.size == 0:
+            continue
+        if a == 0 and b < T:                        # trial start: far part, up to the worst
+            drop = slice(a, a + int(bad.max()) + 1)
+        elif b == T and a > 0:                      # trial end: from the first bad to the end
+            drop = slice(a + int(bad.min()), b)
+        elif float(np.sqrt(np.mean(e ** 2))) > REJECT_MM:
+            drop = slice(a, b)
+        else:
+            continue
+        count += drop.stop - drop.start
+        out[drop, j] = float("nan")
+    if count:
+        warnings.warn(f"{count} filled sample(s) left unfilled: their estimated error is above "
+                      f"{REJECT_MM:g} mm (extrapolate=None fills them)", UnfilledWarning,
+                      stacklevel=3)
+    return count
 
 
 def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Tensor,

@@ -6,6 +6,8 @@ dispatches by protocol name (used by the CLI and the experiment configs).
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 
@@ -123,3 +125,100 @@ def generate(protocol: str, T: int, J: int, **kwargs) -> np.ndarray:
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown gap protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
     return PROTOCOLS[protocol](T, J, **kwargs)
+
+
+# --- real gap patterns -------------------------------------------------------------------------
+
+def vertical_axis(points: np.ndarray) -> int:
+    """The axis along which a standing body is longest: the median over frames of each axis'
+    extent of the observed markers (a person is taller than wide in almost every frame)."""
+    P = np.asarray(points, dtype=np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)             # blackout frames
+        extent = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)        # (T, 3)
+        return int(np.argmax(np.nanmedian(extent, axis=0)))
+
+
+def body_side(label: str) -> float:
+    """-1 for a left, +1 for a right, 0 for a midline marker, read from the label (``LFHD``,
+    ``L_ASIS``, ``L.Knee``, ``Derrick:LSHO``, ``l should``, ``LeftAnkle``)."""
+    name = label.rsplit(":", 1)[-1].strip()
+    for side, sign in (("l", -1.0), ("r", 1.0)):
+        low = name.lower()
+        if low.startswith(("left" if side == "l" else "right")):
+            return sign
+        if low[:1] == side and len(name) > 1 and (name[1] in "_. -" or name[1].isupper()
+                                                  or name[1].isdigit()):
+            return sign
+    return 0.0
+
+
+def body_layout(points: np.ndarray, labels) -> np.ndarray:
+    """``(J, 3)`` place of each marker on the body, free of units, facing and lab axes: height
+    (0 = lowest, 1 = highest marker, along :func:`vertical_axis`), side (-1 left, +1 right, from
+    the label), distance from the body's vertical axis (in heights). NaN for a marker never
+    observed."""
+    P = np.asarray(points, dtype=np.float64)
+    v = vertical_axis(P)
+    h = P[..., v]
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)         # blackouts, never-seen markers
+        low, high = np.nanmin(h, axis=1, keepdims=True), np.nanmax(h, axis=1, keepdims=True)
+        size = np.nanmedian(high - low)
+        height = np.nanmedian((h - low) / np.maximum(high - low, 1e-12), axis=0)
+        flat = np.delete(P, v, axis=2)
+        centre = np.nanmean(flat, axis=1, keepdims=True)
+        radial = np.nanmedian(np.linalg.norm(flat - centre, axis=2), axis=0) / max(size, 1e-12)
+    side = np.array([body_side(str(s)) for s in labels])
+    return np.stack([height, side, radial], axis=1)
+
+
+def transplant(source: np.ndarray, T: int, J: int, *, seed: int = 0, rate_ratio: float = 1.0,
+               source_layout: np.ndarray | None = None, target_layout: np.ndarray | None = None,
+               max_missing: float = 0.95) -> np.ndarray:
+    """A real recording's gap pattern laid onto another recording of ``T`` frames, ``J`` markers.
+
+    ``source`` is the ``(Ts, Js)`` missing mask of a real gapped file. It is resampled in time by
+    ``rate_ratio`` (target rate / source rate, nearest frame) so that gaps keep their duration in
+    seconds; source markers missing in more than ``max_missing`` of the frames (dead markers,
+    probes, model outputs) are dropped. The pattern is cut to ``T`` frames at a seeded offset
+    (trial-end gaps stay at the trial ends when ``T`` equals the resampled length). Each kept
+    source marker goes to one target marker: at random (seeded), or -- given both layouts
+    (:func:`body_layout`) -- to the target marker at the most similar place on the body (a
+    minimum-cost assignment; real occlusions hit neighbouring markers together). Target markers
+    left over stay complete; extra source markers (more than ``J``) are dropped at random.
+    """
+    S = np.asarray(source, dtype=bool)
+    keep = np.flatnonzero(S.mean(axis=0) <= max_missing)
+    S = S[:, keep]
+    rng = np.random.default_rng(seed)
+    Ts = max(1, int(round(S.shape[0] * rate_ratio)))
+    S = S[np.minimum((np.arange(Ts) / rate_ratio).round().astype(int), S.shape[0] - 1)]
+    if Ts > T:
+        start = int(rng.integers(0, Ts - T + 1))
+        S = S[start:start + T]
+    elif Ts < T:
+        raise ValueError(f"the gap pattern has {Ts} frames, fewer than the {T} to cover: cut the "
+                         f"target recording to {Ts} frames")
+    if S.shape[1] > J:
+        pick = np.sort(rng.choice(S.shape[1], size=J, replace=False))
+        S, keep = S[:, pick], keep[pick]
+    mask = np.zeros((T, J), dtype=bool)
+    if source_layout is None or target_layout is None:
+        target = rng.permutation(J)[:S.shape[1]]
+    else:
+        from scipy.optimize import linear_sum_assignment
+        a = np.nan_to_num(np.asarray(source_layout, dtype=np.float64)[keep], nan=1e3)
+        b = np.nan_to_num(np.asarray(target_layout, dtype=np.float64), nan=1e3)
+        cost = np.linalg.norm((a[:, None] - b[None]) * LAYOUT_WEIGHTS, axis=2)
+        cost += 1e-6 * rng.random(cost.shape)                     # seeded tie-breaks
+        rows, target = linear_sum_assignment(cost)
+        target = target[np.argsort(rows)]
+    mask[:, target] = S
+    return mask
+
+
+#: Weights of height, side and radial distance when markers are matched by body layout: the side
+#: counts as much as a tenth of the body's height (left and right markers are never swapped
+#: where a same-side marker exists nearby).
+LAYOUT_WEIGHTS = np.array([1.0, 0.1, 1.0])

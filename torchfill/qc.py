@@ -22,7 +22,6 @@ import io
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from . import metrics
 from .solvers.rigid import rigid_fill, rigid_pairs
@@ -58,12 +57,12 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None) -
     missing = ~np.isfinite(X).all(axis=2)
     observed = ~missing
     T = X.shape[0]
-    pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], X, np.nan)))
-    _, donors = rigid_fill(torch.from_numpy(X), torch.from_numpy(observed), pairs)
+    pairs = rigid_pairs(np.where(observed[..., None], X, np.nan), observed)
+    _, donors = rigid_fill(X, observed, pairs, "auto" if names is not None else "data", names)
     donors = donors.numpy()
     lim = limits(X, observed, pairs)
-    rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-    ref = pairs.distance.numpy()
+    rigid = pairs.matrix(pairs.rigid & ~pairs.duplicate, fill=False).astype(bool)
+    ref = pairs.matrix(pairs.distance)
     black = ~observed.any(axis=1)
     rows = []
     for j, a, b in metrics.gap_runs(missing):
@@ -182,8 +181,8 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
     """A self-contained HTML page: summary, the gap table (check rows first), worst-gap plots."""
     X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
     observed = np.isfinite(X).all(axis=2)
-    pairs = rigid_pairs(torch.from_numpy(X))
-    rigid = (pairs.rigid & ~pairs.duplicate).numpy()
+    pairs = rigid_pairs(X)
+    rigid = pairs.matrix(pairs.rigid & ~pairs.duplicate, fill=False).astype(bool)
     labels = names or [str(j) for j in range(X.shape[1])]
     n_check = sum(r["verdict"] != "ok" for r in rows)
     esc = html.escape
@@ -198,7 +197,7 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
              f"teleport limit {rows[0]['step_limit']:.4g} {esc(units)} per frame.</p>"
              if rows else "<p>no gaps</p>"]
     for row in _worst(rows, n_plots):
-        png = _plot(X, F, row, rigid, pairs.distance.numpy(), labels, rate)
+        png = _plot(X, F, row, rigid, pairs.matrix(pairs.distance), labels, rate)
         parts.append(f"<h3>{esc(row['marker'])} {row['start']}-{row['stop'] - 1}: "
                      f"{esc(row['verdict'])}</h3><img src='data:image/png;base64,{png}'>")
     cols = ["frames", "kind", "rigid_donors", "rigid_dev", "edge_jump", "max_step", "outside",

@@ -40,10 +40,11 @@ class SolverModule(pl.LightningModule):
         Lightning's and the callbacks' overhead.
     """
 
-    def __init__(self, solver: Solver) -> None:
+    def __init__(self, solver: Solver, data: dict | None = None) -> None:
         super().__init__()
         self.automatic_optimization = False
         self.solver = solver
+        self.data = dict(data or {})          # the solver's fit data (e.g. auto's ``post``)
         self.initialized = False
         self.solve_seconds = 0.0
         self.X_obs: torch.Tensor | None = None
@@ -55,7 +56,7 @@ class SolverModule(pl.LightningModule):
         start = time.perf_counter()
         if not self.initialized:
             self.X_obs, mask = observed_view(batch)
-            self.solver.initialize(self.X_obs, mask)
+            self.solver.initialize(self.X_obs, mask, **self.data)
             self.initialized = True
         self.solver.step_and_record()
         self.solve_seconds += time.perf_counter() - start
@@ -89,17 +90,17 @@ def quiet_lightning() -> None:
 
 
 def fit(solver: Solver, datamodule, *, callbacks=(), logger=False, progress: bool = False,
-        accelerator: str = "cpu") -> SolverModule:
+        accelerator: str = "cpu", data: dict | None = None) -> SolverModule:
     """Run ``solver`` on ``datamodule``'s case under a Lightning ``Trainer``; returns the module.
 
     The Trainer runs one epoch of ``datamodule.n_steps`` batches (set it to ``solver.max_iter``);
     :class:`~torchfill.lightning.callbacks.Convergence` ends it when the solver's own stopping rule
-    fires (observed data only).
+    fires (observed data only). ``data``: the solver's fit data besides X and the mask.
     """
     from .callbacks import Convergence
 
     quiet_lightning()
-    module = SolverModule(solver)
+    module = SolverModule(solver, data)
     callbacks = list(callbacks)
     if not any(isinstance(c, Convergence) for c in callbacks):
         callbacks.insert(0, Convergence())

@@ -56,9 +56,11 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
         rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
         params = _training_params(cfg, case, rec.labels, rest)
         constrained = bool(params.pop("constraints", False))   # fill()'s post-step, scored
-        if "constraints" in get_solver(case.method.solver).declared_params():
-            params["constraints"] = constrained     # auto scores candidates as fill() passes it
         solver = get_solver(case.method.solver, **params)
+        data = {}
+        if constrained and "post" in solver.fit_data:   # auto scores candidates as fill() does
+            from ..constraints import constrain_candidates
+            data["post"] = constrain_candidates
         dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
                             dtype=getattr(torch, cfg.dtype), device=cfg.device)
         evaluation = Evaluation(every=1 if showcase else 0,
@@ -67,7 +69,7 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
         accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
         module = fit(solver, dm, callbacks=[stop, HistoryLogger(), evaluation],
                      logger=_loggers(cfg, case, runs_dir), progress=progress,
-                     accelerator=accelerator)
+                     accelerator=accelerator, data=data)
         row.update(solver=case.method.solver,
                    **{k: evaluation.final.get(k, "") for k in R.SCORE_METRICS},
                    n_iter=solver.n_iter_, rank=R.solver_rank(solver), converged=solver.converged_,

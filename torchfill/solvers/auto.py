@@ -10,8 +10,8 @@ How (observed data only, never the ground truth of the gaps):
    extrapolation.
 2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
    that fails on the recording (e.g. ``pca_train`` without enough complete frames, ``rigid`` or
-   ``pma`` on 2-D keypoints) is dropped. With ``constraints`` (what ``fill()`` passes by default)
-   each fill first goes through fill()'s constraints post-step, so candidates are scored on what
+   ``pma`` on 2-D keypoints) is dropped. Given a ``post`` step as fit data (``fill()`` passes its
+   constraints post-step when they are on) each fill first goes through it, so candidates are scored on what
    fill() will return; held-out samples that rigid donors fill (the same for every candidate) do
    not count in the choice.
 3. Each gap (real or held out) gets a kind: at a trial end or inside, its length (``<= 20``,
@@ -52,13 +52,17 @@ from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
 Tensor = torch.Tensor
 
-#: Candidates tried by default, in this order; names not registered (yet) are skipped. ``li``
-#: and ``lgrnn`` (Tits et al.'s local models, each < 1 s on 1200 x 41) were the best single
-#: method on 8 of the 19 cases of scripts/mask_suite.py (experiments/results/pma_reference.md);
-#: ``rigid`` is left out when the constraints run (their rigid donors are its fill; the rest is
-#: pchip's).
-DEFAULT_CANDIDATES = ("pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn",
-                      "rigid", "li", "lgrnn", "pma", "pca_gloersen")
+#: Candidates tried by default, in this order; names not registered (yet) are skipped: the
+#: temporal interpolants for short gaps, the spatial models of Tits et al. 2018 (``li``,
+#: ``lgrnn``, ``glr`` and their average ``pma``) and Gløersen PCA, which place a marker from the
+#: markers seen in the same frame (real gaps sit mostly at trial ends, where nothing else works),
+#: and ``tucker_tnn`` for long interior gaps and dense occlusion. ``rigid`` is left out when a
+#: post-step runs (its rigid donors are that fill). ``svt``, ``cp`` and ``pca_train`` were never
+#: the best single method on the real-gap-pattern suite and cost a third of the fits' time
+#: (``cp`` won one still 80-frame window of the mask suite by 0.02 mm); pass ``candidates=`` to
+#: try them.
+DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "pca_gloersen",
+                      "tucker_tnn")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -218,7 +222,8 @@ class Auto(Solver):
 
     name = "auto"
     iterative = False
-    fit_data = ("training",)
+    spatial = True
+    fit_data = ("training", "post")
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "candidates": Param(None, (tuple, list), allow_none=True,
@@ -231,12 +236,6 @@ class Auto(Solver):
         "refit": Param(True, bool,
                        doc="refit the candidates that carry weight on all observed samples for the "
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
-        "constraints": Param(False, bool,
-                             doc="score and average the candidates' fills after fill()'s "
-                                 "constraints post-step (torchfill.constraints, no extrapolation "
-                                 "limit), as fill() returns them; fill() passes its own "
-                                 "constraints= here (default True there). Samples that rigid "
-                                 "donors fill do not weigh in the choice; the error model knows them"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -258,7 +257,7 @@ class Auto(Solver):
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
             return list(self.candidates)
-        known = set(available()) - ({"rigid"} if self.constraints else set())
+        known = set(available()) - ({"rigid"} if "post" in self.fit_data_ else set())
         return [name for name in DEFAULT_CANDIDATES if name in known]
 
     # -- contract --------------------------------------------------------------------------
@@ -399,33 +398,14 @@ class Auto(Solver):
         return fills, donor
 
     def _constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
-        """Each candidate's fill (C, T, J, D) after fill()'s constraints post-step, with the
-        ``missing`` (T, J) samples free (no extrapolation limit), and the (T, J) samples rigid
-        donors fill (the same for every candidate: they depend on the observed samples only).
-        Unchanged, with no donors, when ``constraints`` is off."""
-        donor = torch.zeros_like(missing)
-        if not self.constraints or fills.shape[0] == 0:
-            return fills, donor
-        from ..constraints import constrain, rigid_donors      # fill()'s post-step, one home
-        from .rigid import rigid_pairs
-
-        miss = missing.cpu().numpy()
-        pairs = donors = None
-        if fills.shape[-1] == 3:       # the same rigid pairs and donors for every candidate
-            X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
-            pairs = rigid_pairs(X, ~missing.cpu())
-            donors = rigid_donors(X.numpy(), ~miss, pairs)
-        def one(F: Tensor):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
-        done = list(ops.thread_map(one, fills))            # numpy lets go of the GIL for most of it
-        out = [torch.from_numpy(G) for G, _ in done]
-        report = done[-1][1]
-        if report.rigid_done is not None:
-            donor = torch.as_tensor(report.rigid_done, device=missing.device)
-        out = torch.stack(out).to(device=fills.device, dtype=fills.dtype)
-        return torch.where(torch.isfinite(out), out, fills), donor
+        """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data
+        (``fill()`` passes :func:`torchfill.constraints.constrain_candidates` when its constraints
+        are on), and the (T, J) samples that rigid donors fill there. Unchanged, with no donors,
+        without a post-step."""
+        post = self.fit_data_.get("post")
+        if post is None or fills.shape[0] == 0:
+            return fills, torch.zeros_like(missing)
+        return post(fills, missing)
 
     @staticmethod
     def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
@@ -456,14 +436,3 @@ class Auto(Solver):
         std[gaps] = var.sqrt() * self.sigma_
         self.std_ = std
         self.error_model_ = None if int(V.sum()) < 10 else (beta, log_scale)
-
-
-def holdout_std(method: str, params: dict, X: Tensor, missing: Tensor, seed: int = 0,
-                constraints: bool = False, **data) -> Tensor:
-    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
-    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
-    ``data``: the method's fit data (``training=``); ``constraints``: as fill()'s."""
-    solver = Auto(candidates=(method,), candidate_params={method: dict(params)}, seed=seed,
-                  constraints=constraints)
-    solver.fit(X, missing, **data)
-    return solver.std_

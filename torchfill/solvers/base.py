@@ -184,6 +184,9 @@ class Solver(nn.Module):
 
     #: names of the data ``fit`` takes besides ``X`` and ``mask`` (e.g. ``("training",)``)
     fit_data: ClassVar[tuple[str, ...]] = ()
+    #: places a missing marker from the markers seen in the same frame (not only along time):
+    #: fill()'s extrapolation limit then cuts only trial-end frames too empty for that
+    spatial: ClassVar[bool] = False
     #: the dtype ``fill()`` runs this solver in unless told otherwise (None: the input's, float64);
     #: the solver itself always follows the dtype it is given
     fill_dtype: ClassVar[torch.dtype | None] = None

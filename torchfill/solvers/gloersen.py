@@ -147,6 +147,7 @@ class PCAGloersen(Solver):
 
     name = "pca_gloersen"
     iterative = False
+    spatial = True
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "weight_scale": Param(0.28, float, low=0.0, low_open=True,

@@ -369,6 +369,7 @@ class _Tits(Solver):
     """Common frame of the Tits et al. (2018) solvers; ``models`` picks which take part."""
 
     iterative = False
+    spatial = True
     models: ClassVar[frozenset[str]] = frozenset()
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),

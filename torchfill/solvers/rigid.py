@@ -1,30 +1,29 @@
-"""Rigid segments found in the data, and the rigid-body fill (Kabsch / SVD).
+"""Rigid-body reconstruction from segment-mates (Kabsch), and the rigid pairs of the data.
 
-A marker on a rigid segment (head, pelvis, a foot with three markers) is best filled from the
-other markers of its segment: the segment's motion is a rotation and a translation, which three
-observed markers determine. This is what Vicon Nexus' rigid-body fill and QTM's kinematic fill do.
+A marker on a segment (head, pelvis, a thigh cluster plate, a foot) is best filled from the other
+markers of its segment in the same frame: the segment's motion is a rotation and a translation,
+which three observed markers determine. This is what Vicon Nexus' rigid-body fill, QTM's kinematic
+fill, ``gapfill.recover_marker_rbt`` and Kinetics Toolkit's ``track_cluster`` do. Which markers
+form a segment comes from :mod:`torchfill.segments` (marker-name tables, the data, or a user file).
 
-**Which markers are rigid with which** is read from the recording itself. For every pair, the
-distance while both are observed has a median ``d`` and a robust spread ``s`` (1.4826 x MAD). The
-pair is rigid when ``s <= tol * scale``, where ``scale`` is the median of ``d`` over all pairs (the
-body's size, so the rule is free of units); ``tol = 0.005`` is about 3 mm on an adult body (0.01
-lets neck and shoulder pairs in; chosen on simulated gaps of HDM05, CMU and Kinetics Toolkit
-recordings, observed frames only define the pairs). A pair
-whose median distance is below ``tol * scale`` is one marker stored twice (a *duplicate*): it is
-filled by translation from its twin. The partners of a marker are the largest set of its rigid
-pairs that are also rigid with one another (a clique), so that a marker seen only while the body
-was still is not tied to markers of two different segments.
+**The fill** (:func:`segment_fill`) of marker ``j`` at a missing frame ``t``, for each segment of
+``j`` with three or more mates observed at ``t``: the nearest frames before and after ``t`` in
+which ``j`` and three or more of those mates were observed are the references; the weighted
+least-squares rotation and translation taking the mates from a reference frame to frame ``t``
+(Kabsch 1976; each mate weighted by how rigid its distance to ``j`` was while both were observed,
+``1 / (spread^2 + floor^2)``) carries ``j``'s position in the segment along. An interior gap blends
+the two edges' estimates linearly in time (the local position drifts with skin and soft tissue:
+the blend carries that drift across the gap); a trial end uses its one edge. The error estimate of
+a sample is measured on observed frames only: carrying observed ``j`` over the same number of
+frames between reference frames (a few lags, up to ``HOLDOUT_FRAMES`` frames each) gives the RMS
+error as a function of reach, interpolated at the sample's reach. Where ``j`` belongs to several
+segments (a knee marker: thigh and shank), each sample takes the segment with the smaller
+estimate. Fewer than three mates observed: the sample is left NaN for other models.
 
-**The fill** of marker ``j`` at a missing frame ``t`` uses the partners observed at ``t`` (three or
-more, not duplicates of one another): the nearest frames before and after ``t`` in which ``j`` and
-those partners were all observed are the references; the least-squares rotation and translation
-taking the partners from a reference frame to frame ``t`` (Kabsch 1976) carries ``j`` along, and the
-two estimates are blended linearly in time. At a trial end only one reference exists, and the fill
-extrapolates correctly with the segment. A partner set is used only if it passes a hold-out on
-observed frames: carrying the observed marker over the same number of frames as the fill reaches
-(median distance to its reference) must have an RMS error <= ``tol * scale`` (about 3 mm). With fewer than three partners a sample is left to other
-methods (the ``rigid`` method falls back on PCHIP for them; ``fill()``'s constraints keep the
-distances to one or two partners softly, see :mod:`torchfill.constraints`).
+**Rigid pairs** (:func:`rigid_pairs`) are the near-neighbour pairs whose distance is nearly
+constant (robust spread ``<= tol x`` the body's size); :mod:`torchfill.constraints` keeps their
+distances softly. Only each marker's nearest neighbours are measured, so the cost grows linearly
+with the markers (a 6 890-point surface needs no ``J x J`` array).
 
 References
 ----------
@@ -33,11 +32,14 @@ Acta Crystallographica A 32(5), 922-923.
 """
 from __future__ import annotations
 
+import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from .. import segments as _segments
 from .base import Param, Solver, register
 from .interp import Pchip
 
@@ -46,94 +48,99 @@ Tensor = torch.Tensor
 
 @dataclass
 class RigidPairs:
-    """Pairwise rigidity of a recording's markers (all ``(J, J)``)."""
+    """Near-neighbour marker pairs and how rigid they are (one entry per pair ``(j[i], k[i])``,
+    ``j < k``; NumPy arrays)."""
 
-    distance: Tensor    # median distance while both are observed (NaN: never together)
-    spread: Tensor      # robust spread of that distance (1.4826 x MAD)
-    rigid: Tensor       # bool: spread <= tol * scale (diagonal False)
-    duplicate: Tensor   # bool: one marker stored twice (distance <= tol * scale)
-    scale: float        # median pairwise distance: the body's size
-    tol: float = 0.005  # the rigidity tolerance, relative to ``scale``
-    wide: Tensor | None = None  # 95th percentile of |distance - median| while both are observed
+    j: np.ndarray
+    k: np.ndarray
+    distance: np.ndarray    # median distance while both are observed (NaN: too rarely together)
+    spread: np.ndarray      # robust spread of that distance (1.4826 x MAD)
+    rigid: np.ndarray       # bool: spread <= tol * scale
+    duplicate: np.ndarray   # bool: one marker stored twice (distance <= tol * scale)
+    scale: float            # median pairwise distance: the body's size
+    J: int                  # markers in the recording
+    tol: float = 0.005      # the rigidity tolerance, relative to ``scale``
+    wide: np.ndarray | None = None  # 95th percentile of |distance - median| while both observed
 
-    def partners(self, j: int, max_partners: int = 6) -> list[int]:
-        """The largest clique of markers rigid with ``j`` and with one another, most rigid first
-        (duplicates of ``j`` and of one another excluded)."""
-        rigid = self.rigid.cpu().numpy()
-        dup = self.duplicate.cpu().numpy()
-        spread = self.spread[j].cpu().numpy()
-        cand = [k for k in np.argsort(spread) if rigid[j, k] and not dup[j, k]]
-        best: list[int] = []
-        for seed in cand:
-            clique = [seed]
-            for k in cand:
-                if k != seed and all(rigid[k, m] and not dup[k, m] for m in clique):
-                    clique.append(k)
-            if len(clique) > len(best):
-                best = clique
-        return sorted(best, key=lambda k: spread[k])[:max_partners]
+    def matrix(self, values, fill=np.nan) -> np.ndarray:
+        """A dense symmetric ``(J, J)`` array of per-pair ``values`` (for small J: reports)."""
+        v = np.asarray(values)
+        out = np.full((self.J, self.J), fill, dtype=v.dtype if v.dtype == bool else np.float64)
+        out[self.j, self.k] = out[self.k, self.j] = v
+        return out
 
 
-#: Pair distances are measured this many (frame, pair) entries at a time (8 MB per float64
-#: array), so a 120 000-frame recording needs well under 1 GB here instead of the 7 GB of all
-#: (T, J, J, 3) differences at once.
-PAIR_BLOCK = 1 << 20
+#: Pair distances are measured this many (frame, pair) entries at a time.
+PAIR_BLOCK = _segments.PAIR_BLOCK
 #: Pair statistics read at most this many frames, evenly spaced: their sort took 23 of the
 #: constraints' 30 s at 120 000 frames; 12 000 leaves every recording of ../shared/data whole.
 PAIR_FRAMES = 12000
-#: The hold-out error of a rigid fill is measured on at most this many evenly spaced reference
-#: frames (its batched 3 x 3 SVDs were 0.38 of the constraints' 1.3 s at 3 000 frames).
-HOLDOUT_FRAMES = 500
+#: The body's size is the median distance of all pairs up to this many markers, else of this
+#: many pairs' worth of random pairs (the median of 20 000 pairs is within a percent of all).
+SCALE_PAIRS = 20000
+#: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
+HOLDOUT_FRAMES = 64
+#: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
+HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
 
-def rigid_pairs(X: Tensor, observed: Tensor | None = None, *, tol: float = 0.005,
-                min_frames: int = 20) -> RigidPairs:
-    """Find rigid marker pairs from the frames where both markers are observed.
+def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
+                pairs: tuple[np.ndarray, np.ndarray] | None = None) -> RigidPairs:
+    """Find rigid marker pairs among near neighbours from the frames where both are observed.
 
     Parameters
     ----------
-    X : tensor (T, J, 3)
+    X : tensor or array (T, J, 3)
         Marker positions; NaN where missing.
-    observed : bool tensor (T, J), optional
+    observed : bool (T, J), optional
         Observed samples (default: the finite ones).
     tol : float
         Rigid when the distance's robust spread is at most ``tol`` times the median pairwise
-        distance (see the module docstring).
+        distance (``tol = 0.005`` is about 3 mm on an adult body; 0.01 lets neck and shoulder
+        pairs in; chosen on simulated gaps of HDM05, CMU and Kinetics Toolkit recordings).
     min_frames : int
         Pairs seen together in fewer frames are never rigid.
+    pairs : (j, k) arrays, optional
+        The pairs to measure (default: :func:`torchfill.segments.neighbour_pairs`; all pairs for
+        up to ``NEIGHBOURS + 1`` markers).
 
-    A recording longer than ``PAIR_FRAMES`` frames is read at every ``stride``-th frame (the fewest
-    that leave at most ``PAIR_FRAMES``; frames counted for ``min_frames`` too).
+    A recording longer than ``PAIR_FRAMES`` frames is read at every ``stride``-th frame.
     """
-    X = torch.as_tensor(X)
-    if observed is None:
-        observed = torch.isfinite(X).all(dim=-1)
-    stride = -(-X.shape[0] // PAIR_FRAMES)         # long recordings: evenly spaced frames
-    X, observed = X[::stride], observed[::stride]
-    X = torch.where(observed[..., None], X, torch.nan)
-    T, J = X.shape[:2]
-    seen = torch.where(observed.any(dim=0), 0.0, torch.nan).to(X.dtype)   # a marker to itself
-    med, mad, wide = torch.diag(seen), torch.diag(seen), torch.diag(seen)
-    n = torch.diag(observed.sum(dim=0))
-    j, k = torch.triu_indices(J, J, 1, device=X.device)
-    block = max(1, PAIR_BLOCK // max(T, 1))              # pairs at a time: memory ~ T x block
-    for a in range(0, j.numel(), block):
-        jb, kb = j[a:a + block], k[a:a + block]
-        D = torch.linalg.vector_norm(X[:, jb] - X[:, kb], dim=-1)              # (T, pairs)
-        m = torch.nanmedian(D, dim=0).values
-        dev = (D - m).abs()
-        s = 1.4826 * torch.nanmedian(dev, dim=0).values
-        w = _upper_nanquantile(dev, 0.95)
-        c = (observed[:, jb] & observed[:, kb]).sum(dim=0)
-        for out, v in ((med, m), (mad, s), (wide, w), (n, c)):
-            out[jb, kb] = out[kb, jb] = v
-    enough = n >= min_frames
-    off = ~torch.eye(J, dtype=torch.bool, device=X.device)
-    finite = enough & off & torch.isfinite(med)
-    scale = float(torch.median(med[finite])) if bool(finite.any()) else 1.0
-    duplicate = finite & (med <= tol * scale)
-    rigid = finite & (mad <= tol * scale)
-    return RigidPairs(med, mad, rigid, duplicate, scale, tol, wide)
+    X = _numpy(X)
+    observed = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
+    _segments.PAIR_FRAMES, _segments.PAIR_BLOCK = PAIR_FRAMES, PAIR_BLOCK
+    st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
+    J = X.shape[1]
+    scale = _scale(X, observed, st, min_frames)
+    finite = np.isfinite(st.distance)
+    duplicate = finite & (st.distance <= tol * scale)
+    rigid = finite & (st.spread <= tol * scale)
+    return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide)
+
+
+def _scale(X, observed, st, min_frames) -> float:
+    """Median pairwise distance over all pairs (or ``SCALE_PAIRS`` random ones)."""
+    J = X.shape[1]
+    if J * (J - 1) // 2 <= SCALE_PAIRS:
+        a, b = np.triu_indices(J, 1)
+    else:
+        rng = np.random.default_rng(0)
+        a = rng.integers(0, J, SCALE_PAIRS)
+        b = rng.integers(0, J, SCALE_PAIRS)
+        keep = a != b
+        a, b = np.minimum(a, b)[keep], np.maximum(a, b)[keep]
+    if st.j.size == a.size and np.array_equal(st.j, a) and np.array_equal(st.k, b):
+        d = st.distance
+    else:
+        d = _segments.pair_stats(X, observed, (a, b), min_frames=min_frames).distance
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if d.size else 1.0
+
+
+def _numpy(X) -> np.ndarray:
+    if isinstance(X, torch.Tensor):
+        return X.detach().cpu().numpy()
+    return np.asarray(X)
 
 
 def _upper_nanquantile(D: Tensor, q: float) -> Tensor:
@@ -150,136 +157,253 @@ def _upper_nanquantile(D: Tensor, q: float) -> Tensor:
     return torch.where(n > 0, torch.lerp(below, above, p - lo.to(D.dtype)), torch.nan)
 
 
-def kabsch(P: Tensor, Q: Tensor) -> tuple[Tensor, Tensor]:
+def kabsch(P: Tensor, Q: Tensor, w: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Least-squares rotation ``R`` and translation ``t`` with ``Q ~ P @ R.T + t``, batched.
 
-    ``P``, ``Q``: ``(n, k, 3)`` corresponding points (k >= 3, not collinear). Returns ``R``
-    ``(n, 3, 3)`` (a proper rotation, det +1) and ``t`` ``(n, 3)``.
+    ``P``, ``Q``: ``(n, k, 3)`` corresponding points (k >= 3, not collinear); ``w``: optional
+    ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R`` ``(n, 3, 3)`` (a
+    proper rotation, det +1) and ``t`` ``(n, 3)``.
     """
-    cp, cq = P.mean(dim=1), Q.mean(dim=1)
-    H = (P - cp[:, None]).transpose(1, 2) @ (Q - cq[:, None])       # cross-covariance
+    if w is None:
+        cp, cq = P.mean(dim=1), Q.mean(dim=1)
+        H = (P - cp[:, None]).transpose(1, 2) @ (Q - cq[:, None])       # cross-covariance
+    else:
+        w = w / w.sum(dim=1, keepdim=True).clamp(min=torch.finfo(w.dtype).tiny)
+        P, Q = torch.where(w[..., None] > 0, P, 0.0), torch.where(w[..., None] > 0, Q, 0.0)
+        cp, cq = (w[..., None] * P).sum(dim=1), (w[..., None] * Q).sum(dim=1)
+        H = ((P - cp[:, None]) * w[..., None]).transpose(1, 2) @ (Q - cq[:, None])
     U, _, Vh = torch.linalg.svd(H)
     V, Ut = Vh.transpose(1, 2), U.transpose(1, 2)
     d = torch.sign(torch.linalg.det(V @ Ut))
+    d = torch.where(d == 0, torch.ones_like(d), d)
     E = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
     R = V @ E @ Ut
     t = cq - (cp[:, None] @ R.transpose(1, 2))[:, 0]
     return R, t
 
 
-def _carry(X: Tensor, j: int, S: list[int], ref: np.ndarray, frames: np.ndarray) -> Tensor:
-    """Marker ``j`` carried from reference frames ``ref`` to ``frames`` by its partners ``S``."""
-    R, t = kabsch(X[ref][:, S], X[frames][:, S])
-    return (X[ref, j][:, None] @ R.transpose(1, 2))[:, 0] + t
-
-
-def _holdout_error(X: Tensor, j: int, S: list[int], refs: np.ndarray, reach: int) -> float:
-    """RMS error of carrying observed ``j`` over ``reach`` frames between reference frames: the
-    rigid fill's error at that distance, measured on observed samples only."""
-    if refs.size < 2:
-        return np.inf
-    later = np.searchsorted(refs, refs + max(reach, 1))
-    ok = later < refs.size
+def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray,
+           src: np.ndarray, dst: np.ndarray, min_mates: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights
+    ``w``; a mate counts where it is observed in both frames). Returns the estimates (n, 3) and
+    the bool (n,) of those with ``min_mates`` mates."""
+    W = w[None] * (seen[src][:, M] & seen[dst][:, M])
+    ok = (W > 0).sum(axis=1) >= min_mates
+    out = np.full((src.size, 3), np.nan)
     if not ok.any():
-        return np.inf
-    src, dst = refs[ok], refs[later[ok]]
-    pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES)).round().astype(int))
-    src, dst = src[pick], dst[pick]
-    err = _carry(X, j, S, src, dst) - X[dst, j]
-    return float(torch.sqrt((err ** 2).sum(dim=1).mean()))
+        return out, ok
+    src, dst, W = src[ok], dst[ok], W[ok]
+    P = np.nan_to_num(X[src][:, M])
+    Q = np.nan_to_num(X[dst][:, M])
+    R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
+    R, t = R.numpy(), t.numpy()
+    out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
+    return out, ok
 
 
-def _fill_pattern(X: Tensor, seen: np.ndarray, j: int, S: list[int], frames: np.ndarray,
-                  max_error: float = np.inf) -> Tensor | None:
-    """Rigid estimates of marker ``j`` at ``frames`` from partners ``S`` (all seen there); None
-    when no reference frame exists or the hold-out error at the fill's reach exceeds
-    ``max_error``."""
-    refs = np.flatnonzero(seen[:, j] & seen[:, S].all(axis=1))
-    if refs.size == 0:
-        return None
-    pos = np.searchsorted(refs, frames)
-    before = refs[np.clip(pos - 1, 0, refs.size - 1)]
-    after = refs[np.clip(pos, 0, refs.size - 1)]
-    has_b, has_a = pos > 0, pos < refs.size
-    before = np.where(has_b, before, after)
-    after = np.where(has_a, after, before)
-    reach = int(np.median(np.minimum(np.abs(frames - before), np.abs(after - frames))))
-    if np.isfinite(max_error) and _holdout_error(X, j, S, refs, reach) > max_error:
-        return None
-    est_b, est_a = _carry(X, j, S, before, frames), _carry(X, j, S, after, frames)
-    span = np.maximum(after - before, 1)
-    w = torch.as_tensor(np.where(after > before, (frames - before) / span, 0.0),
-                        dtype=X.dtype, device=X.device)[:, None]
-    return (1 - w) * est_b + w * est_a
-
-
-def rigid_fill(X: Tensor, observed: Tensor | None = None, pairs: RigidPairs | None = None, *,
-               min_partners: int = 3) -> tuple[Tensor, Tensor]:
-    """Fill every missing sample that has ``min_partners`` rigid partners observed (or an
-    observed duplicate).
-
-    Returns the filled tensor (NaN where no rigid estimate exists) and the bool ``(T, J)`` mask of
-    the samples filled here. Observed samples are returned unchanged.
-    """
-    X = torch.as_tensor(X)
-    if observed is None:
-        observed = torch.isfinite(X).all(dim=-1)
-    pairs = pairs if pairs is not None else rigid_pairs(X, observed)
-    out = torch.where(observed[..., None], X, torch.nan)
-    done = torch.zeros_like(observed)
-    seen = observed.cpu().numpy()
-    dup = pairs.duplicate.cpu().numpy()
-    for j in np.flatnonzero((~seen).any(axis=0) & seen.any(axis=0)):
-        _fill_duplicates(out, done, X, seen, j, np.flatnonzero(dup[j]))
-        _fill_marker(out, done, X, seen, j, pairs.partners(int(j)), min_partners,
-                     pairs.tol * pairs.scale)
-    return out, done
-
-
-def _fill_duplicates(out, done, X, seen, j, twins) -> None:
-    """A marker stored twice: translate the twin by their median offset while both were seen."""
-    for k in twins:
-        both = seen[:, j] & seen[:, k]
-        todo = np.flatnonzero(~seen[:, j] & seen[:, k] & ~done[:, j].cpu().numpy())
-        if todo.size == 0 or not both.any():
+def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
+    """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
+    ``HOLDOUT_LAGS`` frames (those with at least three pairs): the fill's error by reach."""
+    lags, errs = [], []
+    for lag in HOLDOUT_LAGS:
+        later = np.searchsorted(refs, refs + lag)
+        ok = later < refs.size
+        if ok.sum() < 3:
+            break
+        src, dst = refs[ok], refs[later[ok]]
+        pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
+                         .round().astype(int))
+        src, dst = src[pick], dst[pick]
+        est, good = _carry(X, seen, j, M, w, src, dst)
+        if good.sum() < 3:
             continue
-        offset = torch.nanmedian(X[both, j] - X[both, k], dim=0).values
-        out[todo, j] = X[todo, k] + offset
-        done[todo, j] = True
+        e = est[good] - X[dst[good], j]
+        lags.append(np.median(dst[good] - src[good]))
+        errs.append(np.sqrt((e ** 2).sum(axis=1).mean()))
+    return np.asarray(lags, float), np.maximum.accumulate(np.asarray(errs, float))
 
 
-def _fill_marker(out, done, X, seen, j, partners, min_partners, max_error) -> None:
-    """Kabsch fill of marker ``j`` where at least ``min_partners`` of its partners are seen."""
-    if len(partners) < min_partners:
-        return
-    todo = ~seen[:, j] & ~done[:, j].cpu().numpy()
-    P = seen[:, partners]
-    todo &= P.sum(axis=1) >= min_partners
-    codes = P[todo] @ (1 << np.arange(len(partners)))
-    frames_all = np.flatnonzero(todo)
-    for code in np.unique(codes):
-        frames = frames_all[codes == code]
-        S = [p for i, p in enumerate(partners) if code >> i & 1]
-        while len(S) >= min_partners:
-            est = _fill_pattern(X, seen, int(j), S, frames, max_error)
-            if est is not None:
-                out[frames, j] = est.to(out.dtype)
-                done[frames, j] = True
-                break
-            S = S[:-1]                      # drop the least rigid partner and try again
+def _segment_estimate(X, seen, j, M, w, min_mates=3):
+    """Estimate and error (3-D RMS) of marker ``j`` from mates ``M`` at its missing frames."""
+    T = X.shape[0]
+    nvis = (seen[:, M] * (w > 0)).sum(axis=1)
+    todo = np.flatnonzero(~seen[:, j] & (nvis >= min_mates))
+    est = np.full((T, 3), np.nan)
+    err = np.full(T, np.nan)
+    refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
+    if todo.size == 0 or refs.size == 0:
+        return est, err
+    pos = np.searchsorted(refs, todo)
+    has_b, has_a = pos > 0, pos < refs.size
+    b = refs[np.clip(pos - 1, 0, refs.size - 1)]
+    a = refs[np.clip(pos, 0, refs.size - 1)]
+    eb, okb = _carry(X, seen, j, M, w, b, todo, min_mates)
+    ea, oka = _carry(X, seen, j, M, w, a, todo, min_mates)
+    okb &= has_b
+    oka &= has_a
+    span = np.maximum(a - b, 1)
+    s = np.where(okb & oka, (todo - b) / span, np.where(oka, 1.0, 0.0))[:, None]
+    e = (1 - s) * np.where(okb[:, None], eb, 0.0) + s * np.where(oka[:, None], ea, 0.0)
+    good = okb | oka
+    reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
+    lags, errs = _holdout_curve(X, seen, j, M, w, refs)
+    if lags.size:
+        r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
+    else:                                 # too few observed frames to measure: a coarse bound
+        r = np.full(todo.size, np.nan)
+    est[todo[good]] = e[good]
+    err[todo[good]] = r[good]
+    return est, err
+
+
+def index_segments(segments, labels=None, X=None, observed=None) -> "dict[str, list[int]]":
+    """``segment name -> marker indices``: ``segments`` as :func:`torchfill.segments.resolve`
+    takes it, or already a mapping to integer indices (used as given)."""
+    if isinstance(segments, Mapping) and all(
+            all(isinstance(m, (int, np.integer)) for m in v) for v in segments.values()) \
+            and not isinstance(segments, _segments.Segments):
+        return {str(k): [int(m) for m in v] for k, v in segments.items()}
+    J = None if X is None else np.shape(X)[1]
+    labels = list(labels) if labels is not None else [str(i) for i in range(J or 0)]
+    seg = _segments.resolve(segments, labels if labels else None,
+                            None if X is None else _numpy(X), observed)
+    return dict(seg.indices(labels))
+
+
+def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int = 3
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigid-body reconstruction of every missing sample that has ``min_mates`` segment-mates
+    observed in its frame (see the module docstring).
+
+    Parameters
+    ----------
+    X : array or tensor (T, J, 3)
+        Marker positions, NaN where missing.
+    observed : bool (T, J), optional
+        The observed samples (default: the finite ones); only these are read.
+    segments : optional
+        Anything :func:`torchfill.segments.resolve` takes (a :class:`~torchfill.segments.Segments`,
+        a dict name -> labels, a YAML path, "names", "data", None: the name tables if they fit the
+        ``labels``, else found from the data), or a dict name -> marker indices.
+    labels : list of str, optional
+        The marker labels (needed for segments given by name).
+
+    Returns
+    -------
+    estimate : array (T, J, 3)
+        The reconstruction at missing samples it supports, NaN elsewhere (observed samples too).
+    std : array (T, J)
+        Its estimated error (per coordinate, data units), NaN where no estimate.
+    segment_of : int array (T, J)
+        Index of the segment that supported each estimate, -1 elsewhere: into
+        ``list(index_segments(segments, labels, X, observed))`` (the resolved segments' names).
+    """
+    X = np.asarray(_numpy(X), dtype=np.float64)
+    T, J = X.shape[:2]
+    seen = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
+    seen = seen & np.isfinite(X).all(axis=2)
+    segs = index_segments(segments, labels, X, seen)
+    est = np.full((T, J, 3), np.nan)
+    std = np.full((T, J), np.nan)
+    seg_of = np.full((T, J), -1, dtype=np.int64)
+    members = {s: np.unique(np.asarray(m, dtype=np.int64)) for s, m in segs.items()}
+    need = (~seen).any(axis=0) & seen.any(axis=0)
+    pairs_j, pairs_k = [], []
+    for s, m in members.items():
+        if m.size > min_mates:
+            a, b = np.triu_indices(m.size, 1)
+            pairs_j.append(m[a])
+            pairs_k.append(m[b])
+    if not pairs_j:
+        return est, std, seg_of
+    pj, pk = np.concatenate(pairs_j), np.concatenate(pairs_k)
+    uniq = np.unique(np.stack([pj, pk], 1), axis=0)
+    stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
+    for si, (s, m) in enumerate(members.items()):
+        if m.size <= min_mates:
+            continue
+        a, b = np.triu_indices(m.size, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            floor = 0.01 * np.nanmedian(stats.distance[stats.lookup(m[a], m[b])])
+        if not np.isfinite(floor) or floor <= 0:
+            floor = 1e-9
+        for j in m[need[m]]:
+            M = m[m != j]
+            idx = stats.lookup(np.full(M.size, j), M)
+            spread = np.where(idx >= 0, stats.spread[np.maximum(idx, 0)], np.nan)
+            w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
+            if (w > 0).sum() < min_mates:
+                continue
+            e, r = _segment_estimate(X, seen, int(j), M, w, min_mates)
+            per_coord = r / np.sqrt(3.0)
+            rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
+            mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
+                            np.inf)
+            better = np.isfinite(e).all(axis=1) & (rank < mine)
+            est[better, j] = e[better]
+            std[better, j] = per_coord[better]
+            seg_of[better, j] = si
+    return est, std, seg_of
+
+
+def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None, labels=None,
+               *, min_partners: int = 3) -> tuple[Tensor, Tensor]:
+    """The rigid donors of :mod:`torchfill.constraints` and the QC: :func:`segment_fill` where its
+    estimated error is within the rigidity tolerance (3-D RMS ``<= tol x scale``, about 3 mm on an
+    adult body: truly rigid mates only), and a marker stored twice filled from its twin.
+
+    A gap takes the donors at all of its samples that have them or at none (a donor edge inside
+    a gap would pull the other method's fill there). Returns the fill (NaN where no donor;
+    observed samples unchanged) and the bool ``(T, J)``
+    mask of the samples filled here, as tensors.
+    """
+    Xn = np.asarray(_numpy(X), dtype=np.float64)
+    seen = np.isfinite(Xn).all(axis=2) if observed is None else _numpy(observed).astype(bool)
+    pairs = pairs if pairs is not None else rigid_pairs(Xn, seen)
+    est, std, _ = segment_fill(Xn, seen, segments if segments is not None else "data", labels,
+                               min_mates=min_partners)
+    done = np.isfinite(est).all(axis=2)
+    good = done & (np.sqrt(3.0) * std <= pairs.tol * pairs.scale)
+    for j in np.flatnonzero(done.any(axis=0)):          # a gap's donors all or none: a fill
+        run = np.cumsum(np.diff(np.r_[0, ~seen[:, j]].astype(int)) == 1) * ~seen[:, j]
+        bad = np.unique(run[done[:, j] & ~good[:, j]])  # edge inside a gap is worse than none
+        done[np.isin(run, bad[bad > 0]), j] = False
+    out = np.where(seen[..., None], Xn, np.nan)
+    out[done] = est[done]
+    _fill_duplicates(out, done, Xn, seen, pairs)
+    return torch.from_numpy(out), torch.from_numpy(done)
+
+
+def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
+    """A marker stored twice: translate the twin by their median offset while both were seen."""
+    for a, b in zip(pairs.j[pairs.duplicate], pairs.k[pairs.duplicate]):
+        for j, k in ((a, b), (b, a)):
+            both = seen[:, j] & seen[:, k]
+            todo = np.flatnonzero(~seen[:, j] & seen[:, k] & ~done[:, j])
+            if todo.size == 0 or not both.any():
+                continue
+            out[todo, j] = X[todo, k] + np.median(X[both, j] - X[both, k], axis=0)
+            done[todo, j] = True
 
 
 @register
 class Rigid(Solver):
-    """Rigid-body fill (Kabsch) from >= 3 rigid partners found in the data; PCHIP elsewhere."""
+    """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates; PCHIP elsewhere, with
+    a warning that counts those samples (``history_[-1]["fallback"]``).
+
+    ``segments``: a dict segment name -> marker indices (``fill()`` passes the segments it
+    resolved from the labels, the data or the user's file), or None: found from the data.
+    """
 
     name = "rigid"
     iterative = False
+    spatial = True
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
-        "tol": Param(0.005, float, low=0.0, low_open=True,
-                     doc="rigid when the distance spread <= tol x median pairwise distance"),
-        "min_partners": Param(3, int, low=3, doc="observed rigid partners needed"),
+        "segments": Param(None, dict, allow_none=True,
+                          doc="segment name -> marker indices (None: found from the data)"),
+        "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
     }
 
     def _initialize(self) -> None:
@@ -289,12 +413,23 @@ class Rigid(Solver):
     def step(self) -> dict[str, float]:
         seen = self.Omega_.all(dim=2)
         X = torch.where(seen[..., None], self.M_, torch.nan)
-        self.pairs_ = rigid_pairs(X, seen, tol=self.tol)
-        R, self.rigid_done_ = rigid_fill(X, seen, self.pairs_, min_partners=self.min_partners)
+        segments = self.segments if self.segments is not None else "data"
+        est, std, self.segment_of_ = segment_fill(X.cpu().numpy(), seen.cpu().numpy(), segments,
+                                                  min_mates=self.min_partners)
+        done = torch.from_numpy(np.isfinite(est).all(axis=2)).to(seen.device)
+        self.rigid_done_, self.std_ = done, torch.from_numpy(std).to(self.M_)
+        R = torch.from_numpy(est).to(self.M_)
         T = X.shape[0]
         base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
-        self.X_ = torch.where(self.rigid_done_[..., None], R, base.reshape(self.M_.shape))
-        return {"delta": 0.0, "rigid_share": float(self.rigid_done_.sum() / (~seen).sum().clamp(min=1))}
+        self.X_ = torch.where(done[..., None], R, base.reshape(self.M_.shape))
+        missing = int((~seen).sum())
+        fallback = missing - int(done.sum())
+        if fallback:
+            warnings.warn(f"rigid: {fallback} of {missing} missing samples have fewer than "
+                          f"{self.min_partners} segment-mates observed: filled by PCHIP",
+                          UserWarning, stacklevel=2)
+        return {"delta": 0.0, "rigid_share": float(done.sum()) / max(missing, 1),
+                "fallback": float(fallback)}
 
     def _estimate(self) -> Tensor:
         return self.X_
