@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 import torchfill
+from torchfill import gaps
 from torchfill.data import data_dir
 
 REPO = Path(__file__).resolve().parents[1]
@@ -90,13 +91,16 @@ CASES = [
     ("hamner", "numediart_03_rolling.c3d", 2),
     ("gait2392", "c3dorg_s28_type1.c3d", 3),
     ("hamner", "c3dorg_s01_eb015pr.c3d", 3),
-    ("gait2392", "ktk_basket_sprint.c3d", 4),
+    ("gait2392", "c3dorg_s26_walking_hybrid_1_3.c3d", 4),
     ("hamner", "ktk_basket_sprint.c3d", 4),
     ("gait2392", "c3dorg_s26_walking_hybrid_1_5.c3d", 5),
     ("hamner", "c3dorg_s04_sub_labels.c3d", 5),
     ("gait2392", "c3dorg_s00_codamotion_gaitwands_20150204.c3d", 6),
+    ("gait2392", "ktk_basket_sprint.c3d", 6),
     ("hamner", "c3dorg_s00_codamotion_gaitwands_20150204.c3d", 7),
 ]
+
+N_MASKS = 12
 
 #: name -> (what it is, fill keyword arguments); "gaps" is no fill (NaN left for IK to skip).
 METHODS = {
@@ -107,7 +111,10 @@ METHODS = {
     "lgrnn": ("lgrnn, everything filled", {"method": "lgrnn", "extrapolate": None}),
     "auto": ("auto, everything filled", {"method": "auto", "extrapolate": None}),
     "pchip": ("pchip, everything filled", {"method": "pchip", "extrapolate": None}),
+    "tucker_tnn": ("tucker_tnn, everything filled", {"method": "tucker_tnn", "extrapolate": None}),
 }
+#: Run unless ``--methods`` says otherwise (``auto`` too when it is not the default method).
+DEFAULT_RUN = ("default", "default_all", "auto", "pma", "lgrnn", "pchip")
 
 GROUPS = {
     "hip": ("hip_flexion_r", "hip_flexion_l"),
@@ -117,72 +124,15 @@ GROUPS = {
 }
 
 
-# --------------------------------------------------------------------------------------------
-# Real gap masks laid onto another recording.
-# INLINE STAND-IN for the library's mask transplant: replace by torchfill.gaps.transplant once
-# that is on the main branch.
-# --------------------------------------------------------------------------------------------
-def _vertical_axis(points: np.ndarray) -> int:
-    """The axis along which a body's markers spread most (head to feet), frame by frame."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        spread = np.nanmax(points, axis=1) - np.nanmin(points, axis=1)      # (T, 3)
-        return int(np.nanargmax(np.nanmedian(spread, axis=0)))
-
-
-def _heights(points: np.ndarray) -> np.ndarray:
-    """Each marker's median height relative to the frame's lowest marker, (J,)."""
-    axis = _vertical_axis(points)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        h = points[..., axis] - np.nanmin(points[..., axis], axis=1, keepdims=True)
-        return np.nanmedian(h, axis=0)
-
-
 def transplant_mask(source: torchfill.MarkerSequence, target: torchfill.MarkerSequence,
                     seed: int) -> np.ndarray:
-    """The gap mask of ``source`` laid onto ``target``: (T, J) bool for the target.
-
-    Time: gap durations are kept in seconds (the source mask is sampled at the target's frame
-    times, nearest source frame), from a seeded start inside the source when it is longer, else
-    placed at a seeded offset (the rest of the target keeps no gaps). Markers: the source's
-    markers that are observed somewhere and missing somewhere (never-observed points, probes or
-    model outputs, and complete ones are left out; a seeded subset when there are more than the
-    target's markers) go to target markers of the same rank in height above the lowest marker, so
-    markers that hide together (feet, one side) stay close together on the target.
-    """
-    rng = np.random.default_rng(seed)
-    src = source.mask
-    keep = src.any(axis=0) & ~src.all(axis=0)
-    src, heights_src = src[:, keep], _heights(source.points[:, keep])
-    T, J = target.n_frames, target.n_markers
-    if src.shape[1] > J:
-        pick = np.sort(rng.choice(src.shape[1], J, replace=False))
-        src, heights_src = src[:, pick], heights_src[pick]
-    n = src.shape[1]
-    # time
-    t_target = np.arange(T) / target.rate
-    dur_src, dur_tgt = source.n_frames / source.rate, T / target.rate
-    if dur_src >= dur_tgt:
-        offset = rng.uniform(0.0, dur_src - dur_tgt)
-        idx = np.rint((t_target + offset) * source.rate).astype(int)
-        inside = np.ones(T, bool)
-    else:
-        shift = rng.uniform(0.0, dur_tgt - dur_src)
-        idx = np.rint((t_target - shift) * source.rate).astype(int)
-        inside = (idx >= 0) & (idx < source.n_frames)
-    idx = np.clip(idx, 0, source.n_frames - 1)
-    laid = src[idx] & inside[:, None]                                        # (T, n)
-    # markers: same height rank (ties broken by the seed)
-    order_src = np.lexsort((rng.random(n), heights_src))
-    heights_tgt = _heights(target.points)
-    order_tgt = np.lexsort((rng.random(J), heights_tgt))
-    slots = np.rint(np.linspace(0, J - 1, n)).astype(int) if n > 1 else np.array([J // 2])
-    mask = np.zeros((T, J), bool)
-    for rank, column in enumerate(order_src):
-        mask[:, order_tgt[slots[rank]]] = laid[:, column]
-    return mask
-# --------------------------------------------------------------------------------------------
+    """The gap mask of ``source`` laid onto ``target`` (:func:`torchfill.gaps.transplant`): gap
+    durations kept in seconds, cut at a seeded offset, each source marker on the target marker at
+    the most similar place on the body (real occlusions hit neighbouring markers together)."""
+    return gaps.transplant(source.mask, target.n_frames, target.n_markers, seed=seed,
+                           rate_ratio=target.rate / source.rate,
+                           source_layout=gaps.body_layout(source.points, source.labels),
+                           target_layout=gaps.body_layout(target.points, target.labels))
 
 
 def load_recording(rec: Recording) -> torchfill.MarkerSequence:
@@ -204,6 +154,7 @@ def load_recording(rec: Recording) -> torchfill.MarkerSequence:
 def _opensim():
     import opensim
     opensim.Logger.setLevelString("error")
+    opensim.Logger.removeFileSink()              # no opensim.log in the working directory
     return opensim
 
 
@@ -491,11 +442,17 @@ def _commit() -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--methods", default=",".join(m for m in METHODS if m != "gaps"),
+    from torchfill.filling import default_method
+    default = default_method()
+    METHODS["default"] = (f"default as shipped (`fill(seq)`: {default})", METHODS["default"][1])
+    METHODS["default_all"] = (f"default, everything filled (`extrapolate=None`: {default})",
+                              METHODS["default_all"][1])
+    parser.add_argument("--methods", default=",".join(m for m in DEFAULT_RUN if m != default),
                         help="comma-separated, from: " + ", ".join(METHODS)
                         + " (gaps left is always run: the others are compared with it)")
-    parser.add_argument("--masks", type=int, default=len(CASES),
-                        help=f"how many masks (1-{len(CASES)}, default all)")
+    parser.add_argument("--masks", type=int, default=N_MASKS,
+                        help=f"how many masks, the first of the list (1-{len(CASES)}, "
+                        f"default {N_MASKS})")
     parser.add_argument("--doc", default=str(DOC), help="page to write the table into ('' : none)")
     parser.add_argument("--results", default=str(RESULTS), help="folder for the CSVs ('' : none)")
     args = parser.parse_args(argv)
