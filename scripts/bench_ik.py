@@ -125,14 +125,32 @@ GROUPS = {
 
 
 def transplant_mask(source: torchfill.MarkerSequence, target: torchfill.MarkerSequence,
-                    seed: int) -> np.ndarray:
+                    seed: int, markers: list[str] | None = None) -> np.ndarray:
     """The gap mask of ``source`` laid onto ``target`` (:func:`torchfill.gaps.transplant`): gap
     durations kept in seconds, cut at a seeded offset, each source marker on the target marker at
-    the most similar place on the body (real occlusions hit neighbouring markers together)."""
-    return gaps.transplant(source.mask, target.n_frames, target.n_markers, seed=seed,
-                           rate_ratio=target.rate / source.rate,
+    the most similar place on the body (real occlusions hit neighbouring markers together). Only
+    the target's ``markers`` (default all) get gaps: the IK benchmark passes the markers IK uses,
+    so that no mask is spent on a marker IK ignores."""
+    index = np.arange(target.n_markers) if markers is None else np.array(
+        [j for j, label in enumerate(target.labels) if label in set(markers)])
+    part = target.select(index)
+    laid = gaps.transplant(source.mask, part.n_frames, part.n_markers, seed=seed,
+                           rate_ratio=part.rate / source.rate,
                            source_layout=gaps.body_layout(source.points, source.labels),
-                           target_layout=gaps.body_layout(target.points, target.labels))
+                           target_layout=gaps.body_layout(part.points, part.labels))
+    mask = np.zeros((target.n_frames, target.n_markers), bool)
+    mask[:, index] = laid
+    return mask
+
+
+def ik_markers(rec: Recording) -> list[str]:
+    """The markers the IK setup uses (applied marker tasks with a positive weight)."""
+    osim = _opensim()
+    tool = osim.InverseKinematicsTool(str(DATA / rec.setup))       # owns the task set
+    tasks = tool.getIKTaskSet()
+    return [tasks.get(i).getName() for i in range(tasks.getSize())
+            if tasks.get(i).getConcreteClassName() == "IKMarkerTask" and tasks.get(i).getApply()
+            and tasks.get(i).getWeight() > 0]
 
 
 def load_recording(rec: Recording) -> torchfill.MarkerSequence:
@@ -305,17 +323,19 @@ def run(methods: list[str], n_masks: int, work: Path, log=print) -> list[dict]:
     cases = CASES[:n_masks]
     recs = {name: load_recording(RECORDINGS[name]) for name in {c[0] for c in cases}}
     refs, free = {}, {}
+    markers = {name: ik_markers(RECORDINGS[name]) for name in recs}
     for name, seq in recs.items():
         with _quiet_stdout():
             refs[name] = run_ik(RECORDINGS[name], seq, work / name / "complete")
             free[name] = free_rotations(RECORDINGS[name])
-        log(f"{name}: {seq.n_frames} frames, {seq.n_markers} markers, {len(free[name])} free "
+        log(f"{name}: {seq.n_frames} frames, {seq.n_markers} markers ({len(markers[name])} used "
+            f"by IK, the only ones given gaps), {len(free[name])} free "
             f"rotational coordinates, IK on the complete recording {refs[name].seconds:.1f} s")
     rows = []
     for k, (name, source_file, seed) in enumerate(cases):
         seq = recs[name]
         source = torchfill.read(DATA / source_file)
-        mask = transplant_mask(source, seq, seed)
+        mask = transplant_mask(source, seq, seed, markers[name])
         gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
         gap_frames = mask.any(axis=1)
         case = f"{name}/{Path(source_file).stem}/s{seed}"

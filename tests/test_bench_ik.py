@@ -36,7 +36,9 @@ def tiny(bench):
     rec = bench.RECORDINGS["gait2392"]
     full = bench.load_recording(rec)
     recording, source, seed = bench.CASES[0]
-    mask = bench.transplant_mask(torchfill.read(bench.DATA / source), full, seed)
+    used = bench.ik_markers(rec)
+    mask = bench.transplant_mask(torchfill.read(bench.DATA / source), full, seed, used)
+    assert not mask[:, [j for j, lab in enumerate(full.labels) if lab not in used]].any()
     counts = np.convolve(mask.sum(axis=1), np.ones(30), mode="valid")
     start = int(counts.argmax())
     rec = replace(rec, frames=(start, start + 30))
