@@ -501,7 +501,11 @@ def main(argv: list[str] | None = None) -> None:
             "complete recording, mean over masks; worst error: the largest single error of any "
             "free rotational coordinate over all masks (in brackets: hip and knee flexion); "
             "IK marker error: mean over masks and frames of IK's RMS marker error; fill s / IK s: "
-            "medians per mask.\n\n" + table(summary)
+            "medians per mask. "
+            f"{sum(r.get('writer') == 'opensim' for r in rows)} of {len(rows)} TRC files "
+            "written by `torchfill.write` were rejected by OpenSim's reader (a row whose last "
+            "marker is missing ends short) and were written by OpenSim's own TRC writer "
+            "instead.\n\n" + table(summary)
             + "\n\nPer mask: RMSE over all frames / largest single error.\n\n"
             + case_table(rows, methods))
     print()
