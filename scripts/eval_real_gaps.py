@@ -61,9 +61,9 @@ def plausibility(seq, out) -> dict:
     X = seq.points
     missing = seq.mask
     observed = ~missing
-    pairs = rigid_pairs(torch.from_numpy(np.where(observed[..., None], X, np.nan)))
-    rigid = (pairs.rigid & ~pairs.duplicate).numpy()
-    dev = metrics.rigid_deviation(out.points, missing, rigid, pairs.distance.numpy())
+    pairs = rigid_pairs(np.where(observed[..., None], X, np.nan))        # near neighbours only
+    rigid = pairs.matrix(pairs.rigid & ~pairs.duplicate, fill=False)
+    dev = metrics.rigid_deviation(out.points, missing, rigid, pairs.matrix(pairs.distance))
     jumps = metrics.edge_jumps(out.points, missing)
     scale = 1000.0 if seq.units.strip().lower() == "m" else 1.0       # report mm
     return {

@@ -10,8 +10,12 @@ encodings, NPZ members) and each mutant goes through ``torchfill fill IN -o OUT 
   ``torchfill: error: <file>: <problem>`` naming the input or output;
 * on exit 2 nothing is written (no OUT, no temporary file);
 * on exit 0, OUT reads back; every sample observed in IN is bit-for-bit the same in OUT; and a
-  write-back keeps everything else: a C3D changes only the words of filled samples, a TRC only
-  the cells of filled samples (other lines byte-identical); labels, rate and units are kept.
+  write-back keeps everything else: a C3D changes only the words of filled samples and of gaps
+  (which it writes as missing: residual -1), a TRC only the cells of filled samples, the record
+  of them in line 1, and tabs and empty cells appended to rows (and to the X1 Y1 Z1 line) that
+  OpenSim would read short; labels, rate and units are kept;
+* unfilled samples are missing in the file's own convention: residual -1 in a C3D; in a TRC
+  every data row has all its cells, and a row whose last cell is empty ends with a tab.
 
 Usage::
 
@@ -348,9 +352,9 @@ def _check_kept(src: Path, out: Path, before: MarkerSequence, after: MarkerSeque
         problems.append(f"rate/units {before.rate}/{before.units} -> {after.rate}/{after.units}")
     filled = ~np.isfinite(before.points).all(axis=2) & np.isfinite(after.points).all(axis=2)
     if src.suffix.lower() == ".c3d":
-        problems += _c3d_kept(src, out, before, filled)
+        problems += _c3d_kept(src, out, before, filled) + _c3d_missing(out, after)
     elif src.suffix.lower() == ".trc":
-        problems += _trc_kept(src, out, filled)
+        problems += _trc_kept(src, out, filled) + _trc_rows(out, after.n_markers)
     return problems
 
 
@@ -366,12 +370,34 @@ def _c3d_kept(src: Path, out: Path, before: MarkerSequence, filled: np.ndarray) 
     t, col = word // lay.frame_words, word % lay.frame_words
     allowed = set()
     index = before.meta["point_index"]
-    for tt, j in zip(*np.nonzero(filled)):
+    gaps = ~np.isfinite(before.points).all(axis=2)          # filled, or written as missing
+    for tt, j in zip(*np.nonzero(filled | gaps)):
         allowed.add((int(tt), int(index[j])))
     bad = [(int(x), int(c)) for x, c, d in zip(t, col, diff)
            if d < lay.data_offset or c >= 4 * lay.n_points or (int(x), int(c) // 4) not in allowed]
     return [f"C3D bytes changed outside filled samples: {len(bad)} (first word {bad[0]})"] \
         if bad else []
+
+
+def _c3d_missing(out: Path, after: MarkerSequence) -> list[str]:
+    """Every marker sample missing in OUT is stored with a negative 4th word (residual -1)."""
+    raw = c3d_io.read_raw(out)
+    index = np.asarray(after.meta["point_index"], dtype=np.int64)
+    bad = ~np.isfinite(after.points).all(axis=2) & ~(raw.word[:, index] < 0)
+    return [f"C3D: {int(bad.sum())} missing sample(s) not marked invalid"] if bad.any() else []
+
+
+def _trc_rows(out: Path, J: int) -> list[str]:
+    """Every data row of OUT has frame, time and 3 cells per marker, and one more (a trailing
+    tab) when its last cell is empty (OpenSim drops a trailing empty token)."""
+    from torchfill.io import trc as trc_io
+    parsed = trc_io._load(out)
+    n = 2 + 3 * J
+    for i in parsed.data_lines:
+        cells = parsed.lines[i].rstrip("\r\n").split("\t")
+        if len(cells) < n or (len(cells) == n and not cells[-1].strip()):
+            return [f"TRC line {i + 1}: {len(cells)} cells, OpenSim reads it short"]
+    return []
 
 
 def _trc_kept(src: Path, out: Path, filled: np.ndarray) -> list[str]:
@@ -384,12 +410,23 @@ def _trc_kept(src: Path, out: Path, filled: np.ndarray) -> list[str]:
     rows = trc_io._load(src).data_lines
     allowed = {rows[t]: set(np.flatnonzero(filled[t]).tolist())
                for t in np.flatnonzero(filled.any(axis=1))}
+    record = b"torchfill-filled="
     for i, (x, y) in enumerate(zip(a, b)):
         if x == y:
             continue
-        if i not in allowed:
-            return [f"TRC line {i + 1} changed, not a row with a filled sample"]
+        if i == 0:                                   # the record of the filled samples
+            keep = [c for c in x.split(b"\t") if not c.strip().startswith(record)]
+            got = [c for c in y.split(b"\t") if not c.strip().startswith(record)]
+            while keep and not keep[-1].strip():
+                keep.pop()
+            if got != keep:
+                return ["TRC line 1 changed beyond the record of the filled samples"]
+            continue
         cx, cy = x.split(b"\t"), y.split(b"\t")
+        if i not in allowed:                         # only padding: empty cells appended
+            if cy[:len(cx)] != cx or any(c for c in cy[len(cx):]):
+                return [f"TRC line {i + 1} changed, not a row with a filled sample"]
+            continue
         cx += [b""] * (len(cy) - len(cx))
         bad = [k for k in range(len(cy)) if cx[k] != cy[k] and (k < 2 or (k - 2) // 3
                                                                not in allowed[i])]

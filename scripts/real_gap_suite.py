@@ -170,11 +170,12 @@ def run(case: Case, methods, reuse: dict) -> tuple[dict, list]:
     for m in methods:
         if reuse.get(m, "") not in ("", "nan"):
             row[m], row[f"{m}_s"] = float(reuse[m]), float(reuse[f"{m}_s"])
+            row[f"{m}_cpu"] = float(reuse.get(f"{m}_cpu") or "nan")
             for k in ("spearman", "within"):
                 if m == DEFAULT and k in reuse:
                     row[k] = float(reuse[k])
             continue
-        t = time.perf_counter()
+        t, cpu = time.perf_counter(), time.process_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
@@ -187,6 +188,7 @@ def run(case: Case, methods, reuse: dict) -> tuple[dict, list]:
                 row[m], row[f"{m}_s"] = np.nan, np.nan
                 continue
         row[f"{m}_s"] = time.perf_counter() - t
+        row[f"{m}_cpu"] = time.process_time() - cpu          # all threads; robust to load
         F = out.points
         row[m] = rmse_missing(np.nan_to_num(F), case.truth.points, case.mask) \
             if np.isfinite(F[case.mask]).all() else np.nan
@@ -217,10 +219,10 @@ def summary(rows: list[dict], methods: list[str]) -> str:
                      " | ".join(f"{float(r.get(m, np.nan)):.2f}" for m in methods) +
                      f" | {ratio:.2f} |")
     means = {m: np.nanmean([float(r.get(m, np.nan)) for r in rows]) for m in methods}
-    secs = {m: np.nanmedian([float(r.get(f"{m}_s", np.nan)) for r in rows]) for m in methods}
+    secs = {m: np.nanmedian([float(r.get(f"{m}_cpu", np.nan)) for r in rows]) for m in methods}
     lines.append("| **mean** | | " + " | ".join(f"**{means[m]:.2f}**" for m in methods) +
                  f" | worst {np.nanmax(ratios):.2f} |")
-    lines.append("| median s | | " + " | ".join(f"{secs[m]:.2f}" for m in methods) + " | |")
+    lines.append("| median CPU s | | " + " | ".join(f"{secs[m]:.2f}" for m in methods) + " | |")
     best_single = min(singles, key=lambda m: means[m])
     lines.append("")
     lines.append(f"{len(rows)} cases; best single method by mean: {best_single} "
@@ -241,10 +243,17 @@ def main() -> None:
                     help="comma-separated; 'default' is torchfill.fill's default")
     ap.add_argument("--csv", type=Path, help="write rows here as they finish")
     ap.add_argument("--gaps-csv", type=Path, help="per-gap real vs estimated error of the default")
-    ap.add_argument("--reuse", type=Path, help="take methods already scored in this CSV")
+    ap.add_argument("--reuse", type=Path, nargs="*", default=(),
+                    help="take methods already scored in these CSVs")
     ap.add_argument("--only", help="comma-separated substrings of case names to run")
     ap.add_argument("--seeds", type=int, default=1, help="seeds of the assignment and offset")
+    ap.add_argument("--shard", default="0/1", metavar="I/N",
+                    help="run every N-th case from the I-th (processes side by side; merge their "
+                         "CSVs with --reuse)")
     ap.add_argument("--list", action="store_true", help="list the cases and stop")
+    ap.add_argument("--doc", type=Path, help="also write the summary into this docs page, between "
+                                             "its <!-- real_gap_suite:start/end --> markers "
+                                             "(mask_suite:start/end with --mask-suite)")
     ap.add_argument("--mask-suite", type=Path,
                     help="run the simulated-gap cases written by scripts/mask_suite.py in this "
                          "folder instead of the real gap patterns")
@@ -253,19 +262,23 @@ def main() -> None:
     suite = mask_suite(args.mask_suite) if args.mask_suite else cases(seeds=args.seeds)
     if args.only:
         suite = [c for c in suite if any(s in c.name for s in args.only.split(","))]
+    i, n = (int(x) for x in args.shard.split("/"))
+    suite = suite[i::n]
     if args.list:
         for c in suite:
             print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, "
                   f"{int(c.mask.sum())} hidden, {100 * _trial_end_share(c.mask):.0f} % at trial ends")
         return
-    reuse = {}
-    if args.reuse and args.reuse.exists():
-        with open(args.reuse) as f:
-            reuse = {r["case"]: r for r in csv.DictReader(f)}
+    reuse: dict[str, dict] = {}
+    for path in args.reuse:
+        with open(path) as f:
+            for r in csv.DictReader(f):
+                reuse.setdefault(r["case"], {}).update({k: v for k, v in r.items() if v != ""})
     rows, per_gaps = [], []
     for c in suite:
         keep = {k: v for k, v in reuse.get(c.name, {}).items()
-                if any(k in (m, f"{m}_s") for m in methods if m != DEFAULT)}
+                if any(k in (m, f"{m}_s", f"{m}_cpu") for m in methods)
+                or (k in ("spearman", "within") and DEFAULT in methods)}
         row, g = run(c, methods, keep)
         rows.append(row)
         per_gaps += g
@@ -273,7 +286,11 @@ def main() -> None:
               flush=True)
         if args.csv:
             _write_csv(args.csv, rows)
-    print(summary(rows, methods))
+    table = summary(rows, methods)
+    print(table)
+    if args.doc:
+        from docblock import write_block
+        write_block(args.doc, "mask_suite" if args.mask_suite else "real_gap_suite", table)
     if args.gaps_csv and per_gaps:
         _write_csv(args.gaps_csv, [dict(zip(("case", "real_rmse", "est_std"), g)) for g in per_gaps])
         real = np.array([g[1] for g in per_gaps])

@@ -399,15 +399,20 @@ def test_info_separates_never_observed_markers_trial_ends_and_duplicates(tmp_pat
     assert f"{100 * (6 + 4 + 1) / 150:.1f}% missing in observed markers" in out
 
 
-def test_headerless_csv_says_what_it_assumed_and_stays_headerless(tmp_path):
+def test_headerless_csv_says_what_it_assumed_and_the_fill_records_it(tmp_path):
     path = tmp_path / "raw.csv"
     path.write_text("1,2,3,4,5,6\n,,,7,8,9\n2,3,4,5,6,7\n")
     with pytest.warns(UserWarning, match="no header row; labels M1..M2, 100 Hz, mm assumed"):
         seq = torchfill.read(path)
+    torchfill.write(seq, tmp_path / "same.csv")              # nothing filled: stays headerless
+    lines = (tmp_path / "same.csv").read_text().splitlines()
+    assert lines[1:] == ["1.0,2.0,3.0,4.0,5.0,6.0", ",,,7.0,8.0,9.0", "2.0,3.0,4.0,5.0,6.0,7.0"]
     out = torchfill.fill(seq, "linear")
     torchfill.write(out, tmp_path / "filled.csv")
     lines = (tmp_path / "filled.csv").read_text().splitlines()
-    assert len(lines) == 3 and lines[0] == "1.0,2.0,3.0,4.0,5.0,6.0"
+    assert lines[0] == "# rate=100.0; units=mm; first_frame=0"
+    assert lines[1] == "M1_x,M1_y,M1_z,M2_x,M2_y,M2_z,filled"   # the filled samples' column
+    assert lines[2] == "1.0,2.0,3.0,4.0,5.0,6.0," and lines[3].endswith(",1")
 
 
 def test_unwritable_output_is_refused_before_the_fill(tmp_path, capsys, monkeypatch):

@@ -224,26 +224,90 @@ def test_interp_linear_unobserved_column_is_zero_and_no_nan():
                                                        dtype=torch.float64))
 
 
-def test_thread_map_keeps_order_shares_threads_and_restores_them(monkeypatch):
+def _threads(n):
+    """torch's thread count set to ``n`` for a test, restored afterwards."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def scope():
+        before = torch.get_num_threads()
+        torch.set_num_threads(n)
+        try:
+            yield
+        finally:
+            torch.set_num_threads(before)
+    return scope()
+
+
+def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
     import threading
     import time
 
     from torchfill.ops import thread_map
+    from torchfill.ops.threads import _omp_set_num_threads
 
-    state = {"n": 4}
-    monkeypatch.setattr(torch, "get_num_threads", lambda: state["n"])
-    monkeypatch.setattr(torch, "set_num_threads", lambda n: state.update(n=n))
+    if _omp_set_num_threads() is None:
+        pytest.skip("torch without a reachable OpenMP runtime: workers keep their count")
     seen = []
 
     def work(k):
         time.sleep(0.01 * (5 - k))                       # the later items finish first
-        seen.append((threading.current_thread().name, state["n"]))
+        seen.append((threading.current_thread().name, torch.get_num_threads()))
         inner = list(thread_map(lambda x: threading.current_thread().name, [0, 1]))
         assert len(set(inner)) == 1                       # nested: serial, in this thread
         return k * k
 
-    assert list(thread_map(work, range(5), workers=2)) == [0, 1, 4, 9, 16]
-    assert {n for _, n in seen} == {2} and state["n"] == 4          # 4 threads // 2 workers
-    assert len({name for name, _ in seen}) == 2
-    assert list(thread_map(work, range(3), workers=1)) == [0, 1, 4]    # serial: all threads
-    assert seen[-1] == (threading.current_thread().name, 4)
+    with _threads(4):
+        assert list(thread_map(work, range(5), workers=2)) == [0, 1, 4, 9, 16]
+        assert {n for _, n in seen} == {2}                # 4 threads // 2 workers, in the workers
+        assert torch.get_num_threads() == 4               # never changed here
+        fresh = []
+        t = threading.Thread(target=lambda: fresh.append(torch.get_num_threads()))
+        t.start(), t.join()
+        assert fresh == [4]                               # nor for threads started later
+        assert len({name for name, _ in seen}) == 2
+        assert list(thread_map(work, range(3), workers=1)) == [0, 1, 4]    # serial: all threads
+        assert seen[-1] == (threading.current_thread().name, 4)
+
+
+def test_windowed_fill_in_threads_leaves_other_threads_thread_count_alone():
+    """A watcher thread of the caller's program samples torch's thread count (its own, and that of
+    threads it starts) all through a fill whose windows run in two worker threads: it never changes (the library leaves global torch
+    state alone: threads, default dtype, seeds)."""
+    import threading
+
+    import numpy as np
+
+    import torchfill
+    from torchfill import gaps
+
+    rng = np.random.default_rng(0)
+    T, J = 1200, 10
+    t = np.arange(T)[:, None, None] / 100.0
+    X = 100 * np.sin(t * rng.uniform(0.5, 2, (1, J, 3)) + rng.uniform(0, 6, (1, J, 3)))
+    mask = gaps.multi_gap(T, J, n_markers=4, gap_length=30, max_gaps=4, seed=0)
+    given = np.where(mask[..., None], np.nan, X)
+    seeds = torch.initial_seed(), torch.get_default_dtype()
+    with _threads(2):
+        stop, counts = threading.Event(), []
+
+        def sample():
+            counts.append(torch.get_num_threads())
+
+        def watch():                 # the count a thread of the program starts torch work with
+            while not stop.is_set():
+                fresh = threading.Thread(target=sample)
+                fresh.start(), fresh.join()
+                sample()
+                stop.wait(0.001)
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            out = torchfill.fill(given, "svt", window=200, workers=2, constraints=False)
+        finally:
+            stop.set()
+            watcher.join()
+    assert len(counts) > 10 and set(counts) == {2}, sorted(set(counts))
+    assert (torch.initial_seed(), torch.get_default_dtype()) == seeds
+    assert np.isfinite(out[mask]).all()

@@ -353,16 +353,17 @@ def _warn(report: ConstraintReport, names) -> None:
                       stacklevel=3)
 
 
-def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor
+def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=None
                          ) -> tuple[torch.Tensor, torch.Tensor]:
     """Several candidate fills of one recording through the post-step, as ``auto`` scores them.
 
     ``fills`` (C, T, J, D): each candidate's fill; ``missing`` (T, J): the samples each may change
-    (no extrapolation limit). Returns the constrained fills (a candidate's own value where the
-    post-step left NaN) and the (T, J) samples that rigid donors fill: those depend on the
-    observed samples only, so the rigid pairs and donors are found once for all candidates, and
-    the candidates are constrained in threads (numpy lets go of the GIL for most of it).
-    ``fill()`` passes this function to ``auto`` as its ``post`` fit data.
+    (no extrapolation limit); ``segments``: as :func:`constrain` takes them (default: found from
+    the data). Returns the constrained fills (a candidate's own value where the post-step left
+    NaN) and the (T, J) samples that rigid donors fill: those depend on the observed samples only,
+    so the rigid pairs and donors are found once for all candidates, and the candidates are
+    constrained in threads (numpy lets go of the GIL for most of it). ``fill()`` passes this
+    function to ``auto`` as its ``post`` fit data.
     """
     from . import ops
 
@@ -372,14 +373,15 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor
     miss = missing.cpu().numpy()
     pairs = donors = None
     if fills.shape[-1] == 3:
-        X = torch.where(missing[..., None], float("nan"), fills[0]).cpu()
-        pairs = rigid_pairs(X, ~missing.cpu())
-        donors = rigid_donors(X.numpy(), ~miss, pairs)
+        X = torch.where(missing[..., None], float("nan"), fills[0]).cpu().numpy()
+        seen = ~miss & np.isfinite(X).all(axis=2)
+        pairs = rigid_pairs(X, seen)
+        donors = rigid_donors(X, seen, pairs, segments)
 
     def one(F: torch.Tensor):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors)
+            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors, segments=segments)
     done = list(ops.thread_map(one, fills))
     if done[-1][1].rigid_done is not None:
         donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)

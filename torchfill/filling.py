@@ -2,6 +2,7 @@
 same kind of object it was given, observed samples bit-for-bit unchanged."""
 from __future__ import annotations
 
+import functools
 import threading
 import time
 import warnings
@@ -42,19 +43,40 @@ def default_method() -> str:
     return next(m for m in DEFAULT_METHODS if m in available())
 
 
-def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = None,
-         window: int | None = windows.WINDOW, progress: Callable[[dict], None] | None = None,
-         constraints: bool = True, extrapolate: float | None = 0.25, return_std: bool = False,
-         dtype=None, workers: int | None = None, segments=None, **params):
+class _Default(int):
+    """The default of an ``int`` argument, told apart from the same number given explicitly."""
+
+
+_WINDOW = _Default(windows.WINDOW)
+
+
+def fill(data, method: str | None = None, *, params: dict | None = None, training=None,
+         mask=None, max_gap: int | None = None, window: int | None = _WINDOW,
+         progress: Callable[[dict], None] | None = None, constraints: bool = True,
+         extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
+         workers: int | None = None, segments=None, **legacy):
     """Fill the gaps of a recording.
 
     Parameters
     ----------
-    data : MarkerSequence, ndarray or torch.Tensor of shape (T, J, D)
+    data : MarkerSequence, ndarray or torch.Tensor of shape (T, J, D), or a batch (B, T, J, D)
         D = 3 (markers, xyz) or 2 (image keypoints, xy); any D >= 1 for arrays and tensors. NaN
-        marks a missing coordinate; a sample with any NaN coordinate counts as missing.
+        marks a missing coordinate; a sample with any NaN coordinate counts as missing. A batch
+        of arrays or tensors is filled sequence by sequence (``mask`` then ``(B, T, J)``) and
+        returned as a batch. float16 / bfloat16 tensors are computed in float32 and returned in
+        their own dtype.
     method : str, optional
         A name from :func:`methods` (default: the best registered, see ``DEFAULT_METHODS``).
+    params : dict, optional
+        Hyperparameters of the method (see ``torchfill methods``), e.g. ``{"max_iter": 200}``.
+        They never mix with ``fill()``'s own arguments: ``fill(X, "pma", window=15)`` is an
+        error (pma has a ``window`` of its own), ``params={"window": 15}`` sets pma's.
+        Passing them as keyword arguments of ``fill()`` still works for one release, with a
+        DeprecationWarning.
+    training : MarkerSequence, ndarray or a list of them, optional
+        Training recordings for the methods that take them (the PCA methods): MarkerSequences are
+        matched to ``data`` by marker label (``Subject:`` prefixes ignored), arrays must already
+        have ``data``'s markers in order.
     mask : array (T, J) of bool, optional
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional
@@ -97,11 +119,9 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         marker labels, a path to a segments YAML file (``torchfill info --segments`` prints one),
         ``"names"`` (the built-in marker-set tables), ``"data"`` (near-rigid clusters found in the
         recording) or None (the tables when the labels fit them, else found from the data). Used
-        by the ``rigid`` method and the constraints' rigid donors.
-    **params
-        Hyperparameters of the method (see ``torchfill methods``). ``training=`` (for the PCA
-        methods) takes other recordings: MarkerSequences are matched to ``data`` by marker label
-        (``Subject:`` prefixes ignored), arrays must already have ``data``'s markers in order.
+        by the ``rigid`` method, ``auto``'s rigid candidate and the constraints' rigid donors.
+    **legacy
+        Deprecated: hyperparameters of the method as keyword arguments (use ``params``).
 
     Returns
     -------
@@ -111,16 +131,33 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
     MarkerSequence).
     """
+    prior = _previous_fill(data, mask)
+    if prior is not None:
+        return _refill(data, prior, method, mask=mask, max_gap=max_gap, window=window,
+                       progress=progress, constraints=constraints, extrapolate=extrapolate,
+                       return_std=return_std, dtype=dtype, workers=workers, segments=segments,
+                       params=params, training=training, **legacy)
     method = default_method() if method is None else method
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
+    params, training = _solver_params(method, params, training, legacy, window is not _WINDOW)
+    again = functools.partial(fill, method=method, params=params, training=training,
+                              max_gap=max_gap, window=window, progress=progress,
+                              constraints=constraints, extrapolate=extrapolate,
+                              return_std=return_std, dtype=dtype, workers=workers,
+                              segments=segments)
+    if not isinstance(data, MarkerSequence) and np.ndim(data) == 4:
+        return _fill_batch(data, mask, again)
+    if isinstance(data, torch.Tensor) and data.dtype in (torch.float16, torch.bfloat16):
+        # computed in float32; every float16/bfloat16 value is exact in float32 and back
+        done = again(data.float(), mask=mask)
+        return tuple(d.to(data.dtype) for d in done) if return_std else done.to(data.dtype)
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap expected >= 0, found {max_gap}")
     if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 2):
         raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers expected an int >= 1 or None, found {workers!r}")
-    training = params.pop("training", None)
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
     if training is not None and "training" not in solver.fit_data:
@@ -154,12 +191,19 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
         seg_idx = _segment_indices(segments, data, points, unfit)
     if bool(todo.any()):
         keep = torch.nonzero(~never).flatten()
-        if seg_idx is not None and "segments" in solver.declared_params():
+        kept_segments = None
+        if seg_idx is not None:
             at = {int(j): i for i, j in enumerate(keep.tolist())}
-            params["segments"] = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
+            kept_segments = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
+        if kept_segments is not None and "segments" in solver.declared_params():
+            params["segments"] = kept_segments
+        if kept_segments is not None and "candidate_params" in solver.declared_params():
+            given = dict(params.get("candidate_params") or {})      # auto's rigid candidate
+            given["rigid"] = {"segments": kept_segments, **given.get("rigid", {})}
+            params["candidate_params"] = given
         extra = {}
         if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
-            extra["post"] = constrain_candidates
+            extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
         if training is not None:
             extra["training"] = [t.to(work or t.dtype) for t in
                                  _align_training(training, data, keep.tolist(), points.shape[1])]
@@ -203,6 +247,83 @@ def fill(data, method: str | None = None, *, mask=None, max_gap: int | None = No
     if kind == "sequence":
         result.meta["std"] = std.cpu().numpy()
     return result, std.cpu().numpy()
+
+
+def _solver_params(method: str, params: dict | None, training, legacy: dict,
+                   window_given: bool) -> tuple[dict, object]:
+    """The method's hyperparameters from ``params`` (and, deprecated, ``fill()``'s extra keyword
+    arguments), checked against ``fill()``'s own arguments; and the training data."""
+    if params is not None and not isinstance(params, dict):
+        raise ValueError(f"params expected a dict of hyperparameters, found {type(params).__name__}")
+    params = dict(params or {})
+    if legacy:
+        both = sorted(set(legacy) & set(params))
+        if both:
+            raise ValueError(f"{', '.join(both)} given both in params and as keyword arguments")
+        if set(legacy) - {"training"}:
+            warnings.warn(f"fill(): method hyperparameters as keyword arguments "
+                          f"({', '.join(sorted(set(legacy) - {'training'}))}) are deprecated and "
+                          f"will be removed in the next release; pass params={{...}}",
+                          DeprecationWarning, stacklevel=3)
+        params.update(legacy)
+    if "training" in params:
+        if training is not None:
+            raise ValueError("training given twice (as fill()'s training and in params)")
+        training = params.pop("training")
+    declared = get_solver(method).declared_params() if method in available() else {}
+    if window_given and "window" in declared and "window" not in params:
+        raise ValueError(f"window is both fill()'s (frames solved at once) and a hyperparameter "
+                         f"of {method} ({declared['window'].doc}); give {method}'s in params "
+                         f"(params={{'window': ...}}; CLI: -p window=...), and name it there too "
+                         f"to set only fill()'s")
+    return params, training
+
+
+def _fill_batch(data, mask, again):
+    """A batch ``(B, T, J, D)``: one fill per sequence, stacked (std too, with ``return_std``)."""
+    tensor = isinstance(data, torch.Tensor)
+    if mask is not None and len(mask) != len(data):
+        raise ValueError(f"a batch of {len(data)} sequences expected a mask (B, T, J) with B = "
+                         f"{len(data)}, found {len(mask)} masks")
+    done = [again(data[b], mask=None if mask is None else mask[b]) for b in range(len(data))]
+    stack = torch.stack if tensor else np.stack
+    if isinstance(done[0], tuple):
+        return tuple(stack([d[k] for d in done]) for k in range(len(done[0])))
+    return stack(done)
+
+
+def _previous_fill(data, mask) -> np.ndarray | None:
+    """``(T, J)`` samples of a MarkerSequence that an earlier fill made (``meta["filled"]``: set
+    by ``fill()``, and by the readers from the file's own mark), still finite and not in ``mask``;
+    None when there are none."""
+    filled = data.meta.get("filled") if isinstance(data, MarkerSequence) else None
+    if filled is None or np.shape(filled) != data.points.shape[:2]:
+        return None
+    prior = np.asarray(filled, dtype=bool) & np.isfinite(data.points).all(axis=2)
+    if mask is not None and np.shape(mask) == prior.shape:
+        prior &= ~np.asarray(mask, dtype=bool)
+    return prior if prior.any() else None
+
+
+def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool, **kwargs):
+    """Fill ``data`` as if its earlier fills (``prior``) were gaps, then put those samples back
+    as they were: they are kept, but never fitted to nor extrapolated from, so that filling a
+    filled recording again gives the same recording (the method sees the same observed samples
+    and leaves the same samples unfilled)."""
+    bare = data.with_points(np.where(prior[..., None], np.nan, data.points))
+    bare.meta.pop("filled", None)
+    bare.meta.pop("std", None)
+    result = fill(bare, method, return_std=return_std, **kwargs)
+    out, std = result if return_std else (result, None)
+    out.points[prior] = data.points[prior]
+    out.meta["filled"] = out.meta["filled"] | prior
+    if std is None:
+        return out
+    old = data.meta.get("std")
+    if old is not None and np.shape(old) == prior.shape:
+        std[prior] = np.asarray(old)[prior]
+    out.meta["std"] = std
+    return out, std
 
 
 def _work_dtype(dtype, solver) -> torch.dtype | None:

@@ -50,9 +50,14 @@ PAIR_BLOCK = 1 << 20
 #: 0.03 / 0.05 with complete or average linkage, 0.05 complete agreed best with the named tables
 #: on HDM05, CMU, Plug-in Gait, OpenSim and Qualisys cluster recordings (scripts/eval_segments.py).
 RELATIVE_SPREAD = 0.05
+#: Data-found clusters grow to at most this many markers (a body segment carries a few; a dense
+#: surface would otherwise merge into one cluster at a cost quadratic in its size).
+MAX_SIZE = 24
 #: Segments found from the data for a fill also give each marker its own: itself and this many
 #: most rigid neighbours (clusters alone left many samples without three mates).
 DATA_MATES = 5
+#: ... for recordings of at most this many markers (a dense surface has clusters enough).
+MATES_UP_TO = 300
 
 # --------------------------------------------------------------------------------------------
 # Name tables. Marker names are normalised (lower case, no separators); "#" stands for the side
@@ -76,7 +81,7 @@ _SIDED = {
               "#shank1", "#shank2", "#shank3", "#shank4", "#sk1", "#sk2", "#sk3", "#sk4",
               "#tb1", "#tb2", "#tb3", "#sh1", "#sh2", "#sh3", "#sh4",
               "#shankupper", "#shankfront", "#shankrear",
-              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm"],
+              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm", "#knee"],
     "foot": ["#ank", "#hee", "#toe", "#mt5", "#fmh", "#vmh", "#heel", "#mt1", "#met", "#met1",
              "#cal", "#toetip", "#midfootsup", "#midfootlat", "#toelat", "#toemed",
              "#fcc", "#fm1", "#fm2", "#fm5", "#ft1", "#ft2", "#ft3", "#mal", "#mall"],
@@ -181,12 +186,12 @@ class Segments(OrderedDict):
         groups = sorted((sorted(g) for g in groups if len(g) >= min_size), key=lambda g: g[0])
         out = cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
                   source="data")
-        if mates > 0:
+        if mates > 0 and J <= MATES_UP_TO:
             rel = stats.relative
             ok = np.isfinite(rel) & (rel <= 3 * relative_spread)
             a = np.concatenate([stats.j[ok], stats.k[ok]])
             b = np.concatenate([stats.k[ok], stats.j[ok]])
-            r = np.concatenate([rel[ok], rel[ok]])
+            r = np.concatenate([stats.spread[ok], stats.spread[ok]])     # absolute: the error
             order = np.lexsort((r, a))
             a, b = a[order], b[order]
             for j in range(J):
@@ -431,11 +436,11 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         D = np.linalg.norm(Xs[:, jb] - Xs[:, kb], axis=-1)
         D[~both] = np.nan
         c = both.sum(axis=0)
-        with np.errstate(all="ignore"), _quiet():
-            m = np.nanmedian(D, axis=0)
-            dev = np.abs(D - m)
-            s = 1.4826 * np.nanmedian(dev, axis=0)
-            w = np.nanpercentile(dev, 95, axis=0)
+        with np.errstate(all="ignore"):
+            m = _col_quantile(np.sort(D, axis=0), c, 0.5)
+            dev = np.sort(np.abs(D - m), axis=0)
+            s = 1.4826 * _col_quantile(dev, c, 0.5)
+            w = _col_quantile(dev, c, 0.95)
         keep = c >= min_frames
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
@@ -444,15 +449,15 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     return PairStats(j, k, med, mad, wide, count, X.shape[1])
 
 
-class _quiet:
-    def __enter__(self):
-        import warnings
-        self._w = warnings.catch_warnings()
-        self._w.__enter__()
-        warnings.simplefilter("ignore", RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._w.__exit__(*exc)
+def _col_quantile(S: np.ndarray, n: np.ndarray, q: float) -> np.ndarray:
+    """``np.nanquantile(D, q, axis=0)`` (linear) from ``S = np.sort(D, axis=0)`` (NaNs last)
+    and the finite counts ``n`` per column, without numpy's per-column loop (NaN where n = 0)."""
+    p = q * np.maximum(n - 1, 0)
+    lo = np.floor(p).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    a = np.take_along_axis(S, lo[None], axis=0)[0]
+    b = np.take_along_axis(S, hi[None], axis=0)[0]
+    return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
 
 
 def _cluster(J: int, stats: PairStats, limit: float) -> list[list[int]]:
@@ -472,6 +477,8 @@ def _cluster(J: int, stats: PairStats, limit: float) -> list[list[int]]:
         if ga == gb:
             continue
         A, B = groups[ga], groups[gb]
+        if len(A) + len(B) > MAX_SIZE:
+            continue
         n_meas = n_good = 0
         for x in A:
             for y in B:

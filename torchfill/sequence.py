@@ -26,7 +26,13 @@ class MarkerSequence:
     source : Path or None
         The file this sequence was read from; writers use it to keep everything else in the file.
     meta : dict
-        Reader-specific extras (e.g. the C3D point indices the markers came from, first frame).
+        Reader-specific extras (e.g. the C3D point indices the markers came from). ``filled``
+        (T, J) bool marks samples a fill made (set by :func:`torchfill.fill`, and by the readers
+        from the file's own mark: C3D residual 0, the TRC/CSV/NPZ/OpenPose records torchfill
+        writes); ``fill()`` keeps such samples as they are but does not fit to them.
+    first_frame : int
+        The file's number of the first frame (C3D first frame, TRC ``Frame#`` of the first row;
+        0 for arrays): frame ``t`` of ``points`` is the file's frame ``first_frame + t``.
     """
 
     points: np.ndarray
@@ -35,6 +41,7 @@ class MarkerSequence:
     units: str = "mm"
     source: Path | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    first_frame: int = 0
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64)
@@ -42,6 +49,10 @@ class MarkerSequence:
             raise ValueError(f"points must have shape (T, J, 3) or (T, J, 2), found "
                              f"{self.points.shape}")
         self.labels = [str(label) for label in self.labels]
+        if isinstance(self.first_frame, bool) or not isinstance(self.first_frame,
+                                                                (int, np.integer)):
+            raise ValueError(f"first_frame must be an int, found {self.first_frame!r}")
+        self.first_frame = int(self.first_frame)
         if len(self.labels) != self.points.shape[1]:
             raise ValueError(
                 f"expected {self.points.shape[1]} labels (one per marker), found {len(self.labels)}"

@@ -46,10 +46,31 @@ def test_csv_round_trip_is_exact(tmp_path):
     seq = synthetic()
     out = tmp_path / "a.csv"
     torchfill.write(seq, out)
-    assert out.read_text().splitlines()[0].startswith("MK0_x,MK0_y,MK0_z,MK1_x")
-    back = torchfill.read(out, rate=120.0)
-    assert back.labels == seq.labels
+    lines = out.read_text().splitlines()
+    assert lines[0] == "# rate=120.0; units=mm; first_frame=0"
+    assert lines[1].startswith("MK0_x,MK0_y,MK0_z,MK1_x")
+    assert lines[2 + 10].split(",")[3:6] == ["", "", ""]       # missing: empty cells
+    back = torchfill.read(out)
+    assert (back.labels, back.rate, back.units) == (seq.labels, 120.0, "mm")
     np.testing.assert_array_equal(back.points, seq.points)   # shortest round-trip decimals
+
+
+def test_csv_keeps_rate_units_first_frame_and_filled(tmp_path):
+    """A 50 Hz recording in metres reads back as 50 Hz, m; the filled samples come back."""
+    seq = synthetic(units="m")
+    seq.rate, seq.first_frame = 50.0, 7
+    filled = np.zeros(seq.mask.shape, bool)
+    filled[3:5, 2] = filled[4, 0] = True
+    seq.meta["filled"] = filled
+    for name in ("a.csv", "a.npz"):
+        torchfill.write(seq, tmp_path / name)
+        back = torchfill.read(tmp_path / name)
+        assert (back.rate, back.units, back.first_frame) == (50.0, "m", 7)
+        np.testing.assert_array_equal(back.meta["filled"], filled)
+        np.testing.assert_array_equal(back.points, seq.points)
+    # numpy's own text reader takes the file as it is: the comment line is skipped
+    table = np.genfromtxt(tmp_path / "a.csv", delimiter=",", skip_header=2)
+    np.testing.assert_array_equal(table[:, :-1].reshape(seq.points.shape), seq.points)
 
 
 def test_csv_headerless_empty_cells_and_partial_samples(tmp_path):

@@ -102,23 +102,59 @@ def test_round_trip_keeps_observed_and_every_other_field(folder, tmp_path):
         changed += 1
         a, b = json.loads(before), json.loads(after)
         p = seq.meta["person"][t]
+        marks = np.flatnonzero(filled.meta["filled"][t]).tolist()
         if p < 0:                                        # nobody there: one person added
             assert len(b["people"]) == len(a["people"]) + 1
-            assert b["people"][-1]["pose_keypoints_2d"][2::3] == [0.0] * J
+            assert b["people"][-1]["torchfill_filled"] == marks
             continue
         kp_a, kp_b = a["people"][p].pop("pose_keypoints_2d"), b["people"][p].pop("pose_keypoints_2d")
+        assert b["people"][p].pop("torchfill_filled") == marks
         assert a == b                                   # every other field and person unchanged
-        assert kp_a[2::3] == kp_b[2::3]                 # confidences left as they were
         for j in range(J):
-            same = kp_a[3 * j:3 * j + 2] == kp_b[3 * j:3 * j + 2]
-            assert same != bool(filled.meta["filled"][t, j])
+            same = kp_a[3 * j:3 * j + 3] == kp_b[3 * j:3 * j + 3]
+            assert same != bool(filled.meta["filled"][t, j])   # observed: x, y, c bit for bit
             if filled.meta["filled"][t, j]:
                 assert kp_b[3 * j:3 * j + 2] == filled.points[t, j].tolist()
+                # no std estimate: half the keypoint's median observed confidence
+                ref = np.median(seq.meta["confidence"][observed[:, j], j])
+                assert kp_b[3 * j + 2] == pytest.approx(0.5 * ref, abs=1e-6)
     assert changed == int(filled.meta["filled"].any(axis=1).sum()) > 0
     with pytest.warns(UserWarning):
-        seen = torchfill.read(out, include_filled=True)       # the fills, read back as data
+        seen = torchfill.read(out)                             # the fills, read back as data
     assert np.array_equal(seen.points, filled.points, equal_nan=True)
     assert np.array_equal(seen.meta["filled"], filled.meta["filled"])
+
+
+def test_fill_confidence_from_std_or_constant(folder, tmp_path):
+    """Filled keypoints: c = c_ref exp(-(std/s)^2/2), or the constant asked for; observed ones
+    keep theirs."""
+    path, xy, conf = folder
+    with pytest.warns(UserWarning):
+        seq = torchfill.read(path)
+    filled, std = torchfill.fill(seq, "linear", return_std=True)
+    mark = filled.meta["filled"]
+    for option, name in ((None, "std"), (0.42, "const")):
+        out = tmp_path / name
+        with pytest.warns(UserWarning):
+            torchfill.write(filled, out, fill_confidence=option)
+            back = torchfill.read(out)
+        c = back.meta["confidence"]
+        observed = ~seq.mask
+        assert np.array_equal(c[observed], seq.meta["confidence"][observed])
+        if option is not None:
+            assert (c[mark] == option).all()
+            continue
+        assert np.isfinite(std[mark]).all()
+        ok = observed
+        span = [np.ptp(seq.points[t][ok[t]], axis=0) for t in range(T) if ok[t].sum() >= 2]
+        s = 0.05 * np.median([np.hypot(*d) for d in span])
+        ref = np.array([np.median(seq.meta["confidence"][ok[:, j], j]) for j in range(J)])
+        t, j = np.nonzero(mark)
+        np.testing.assert_allclose(c[t, j], ref[j] * np.exp(-0.5 * (std[t, j] / s) ** 2),
+                                   atol=1e-6)
+        # a larger std, a lower confidence
+        order = np.argsort(std[t, j] / 1.0)
+        assert (np.diff((c[t, j] / ref[j])[order]) <= 1e-6).all()
     gap = slice(20, 45)                        # the filled wrist stays near the true track
     err = np.abs(filled.points[gap, 4] - xy[gap, 4]).max()
     assert err < 80.0, err

@@ -2,6 +2,8 @@
 every untouched cell; fresh files round-trip."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -22,9 +24,9 @@ EXPECTED = {   # frames, markers, rate, first frame (from each file's header)
 def test_every_shared_trc_reads(path):
     seq = torchfill.read(path)
     T, J, rate, first = EXPECTED.get(path.name, (seq.n_frames, seq.n_markers, seq.rate,
-                                                 seq.meta["first_frame"]))
+                                                 seq.first_frame))
     assert seq.points.shape == (T, J, 3)
-    assert seq.rate == rate and seq.units == "mm" and seq.meta["first_frame"] == first
+    assert seq.rate == rate and seq.units == "mm" and seq.first_frame == first
     assert len(set(seq.labels)) == J and all(label.strip() == label for label in seq.labels)
     assert not np.isinf(seq.points).any()
 
@@ -64,7 +66,17 @@ def test_write_back_changes_only_filled_cells(path, tmp_path):
     data_start = len(src_lines) - seq.n_frames - (src_lines[-1] == b"")
     changed = {i for i, (x, y) in enumerate(zip(src_lines, out_lines)) if x != y}
     rows = {data_start + t for t in np.flatnonzero(filled.any(axis=1))}
-    assert changed == rows                                 # header and other rows byte-identical
+    # rows too short for OpenSim are padded with empty cells and a trailing tab (then every row
+    # and the X1 Y1 Z1 line get one); their cells stay as they were
+    padded = changed - rows - {0}
+    for i in padded:
+        a, b = src_lines[i].rstrip(b"\r"), out_lines[i].rstrip(b"\r")
+        assert b.startswith(a) and not b[len(a):].strip(b"\t") and b.endswith(b"\t")
+    assert padded <= {4} | set(range(data_start, data_start + seq.n_frames))
+    # line 1 gains the record of the filled samples; the rest of the header is byte-identical
+    assert 0 in changed
+    assert out_lines[0].startswith(src_lines[0].rstrip(b"\r\t"))
+    assert out_lines[0].split(b"\t")[-1].startswith(b"torchfill-filled=")
     for t in np.flatnonzero(filled.any(axis=1))[:5]:       # within a changed row, only filled cells
         x = src_lines[data_start + t].split(b"\t")
         y = out_lines[data_start + t].split(b"\t")
@@ -105,3 +117,33 @@ def test_trc_filling_a_short_row(tmp_path):
     filled.meta["filled"] = read.mask
     torchfill.write(filled, tmp_path / "filled.trc")
     np.testing.assert_allclose(torchfill.read(tmp_path / "filled.trc").points[12:15, 2], 1.5)
+
+
+@pytest.mark.parametrize("suffix, label, stored", [
+    (".trc", "R\tASIS", "R ASIS"),                          # a tab would split the TRC cell
+    (".c3d", "L" * 300, "L" * 255),                         # C3D strings hold 255 bytes
+])
+def test_what_a_format_cannot_hold_is_changed_with_one_warning_line(tmp_path, suffix, label,
+                                                                     stored):
+    seq = synthetic(T=10, J=3, gaps=False)
+    seq.labels[1] = label
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torchfill.write(seq, tmp_path / f"x{suffix}")
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert "\n" not in message and repr(label[:20])[:-1] in message
+    assert torchfill.read(tmp_path / f"x{suffix}").labels[1] == stored
+
+
+def test_control_characters_do_not_end_a_line(tmp_path):
+    """Only CR/LF end a TRC line (``str.splitlines`` also breaks at \\x1c-\\x1e, \\x85, ...): a
+    cell holding one is a one-line error, not a row split in two."""
+    seq = synthetic(T=12, J=2, gaps=False)
+    path = tmp_path / "ctl.trc"
+    torchfill.write(seq, path)
+    lines = path.read_bytes().split(b"\n")
+    lines[8] = lines[8].replace(b".", b".\x1e", 1)
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(torchfill.io.FileFormatError, match=r"line 9: .* is not a number"):
+        torchfill.read(path)

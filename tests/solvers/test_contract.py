@@ -6,7 +6,9 @@ gaps) with cheap hyperparameters from ``CHEAP`` (the contract, not the accuracy,
 """
 from __future__ import annotations
 
+import copy
 import functools
+import io
 import inspect
 import math
 import warnings
@@ -94,7 +96,7 @@ def fitted(method: str, kind: str):
             return solver, solver.fit_transform(X, torch.from_numpy(MASK), **FIT_DATA.get(method, {}))
         if kind == "fill_ndarray":
             return None, torchfill.fill(GAPPY.copy(), method=method, constraints=False,
-                                        **cheap(method), **FIT_DATA.get(method, {}))
+                                        params=cheap(method), **FIT_DATA.get(method, {}))
         if kind == "complete":
             solver = make(method)
             return solver, solver.fit_transform(torch.from_numpy(TRUTH), **FIT_DATA.get(method, {}))
@@ -189,7 +191,7 @@ def test_all_observed_returned_unchanged(method):
     _, out = fitted(method, "complete")
     assert torch.equal(out, torch.from_numpy(TRUTH))
     X = torch.from_numpy(TRUTH).float()
-    assert torch.equal(torchfill.fill(X, method=method, **cheap(method)), X)
+    assert torch.equal(torchfill.fill(X, method=method, params=cheap(method)), X)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -252,7 +254,63 @@ def test_unknown_hyperparameter_rejected(method):
     with pytest.raises(ValueError, match="unknown hyperparameter"):
         get_solver(method, not_a_param=1)
     with pytest.raises(ValueError, match="unknown hyperparameter"):
+        torchfill.fill(GAPPY, method=method, params={"not_a_param": 1})
+    with pytest.raises(ValueError, match="unknown hyperparameter"), \
+            pytest.warns(DeprecationWarning, match="params"):
         torchfill.fill(GAPPY, method=method, not_a_param=1)
+
+
+FILL_ARGS = set(inspect.signature(torchfill.fill).parameters)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_fill_never_swallows_a_hyperparameter(method):
+    """A name that is both ``fill()``'s argument and the method's hyperparameter is an error
+    unless ``params`` says which is meant; a hyperparameter as a keyword argument warns."""
+    declared = type(get_solver(method)).declared_params()
+    for name in sorted(set(declared) & FILL_ARGS - {"constraints", "training", "segments"}):  # passed on
+        value = declared[name].default
+        with pytest.raises(ValueError, match=f"{name} is both"):
+            torchfill.fill(GAPPY, method=method, **{name: value})
+    with pytest.warns(DeprecationWarning, match="params="):
+        torchfill.fill(GAPPY, method=method, seed=declared["seed"].default, params=cheap(method),
+                       constraints=False, **FIT_DATA.get(method, {}))
+    assert inspect.signature(torchfill.fill).parameters["params"].kind is inspect.Parameter.KEYWORD_ONLY
+
+
+def test_pma_window_goes_where_it_is_meant():
+    from torchfill.solvers.pma import _Tits
+
+    seen = []
+    original = _Tits._initialize
+
+    def spy(self):
+        seen.append(self.window)
+        return original(self)
+
+    _Tits._initialize = spy
+    try:
+        torchfill.fill(GAPPY, "pma", params={"window": 15}, constraints=False)
+        torchfill.fill(GAPPY, "pma", params={"window": 15}, window=60, constraints=False)
+        with pytest.warns(DeprecationWarning):
+            torchfill.fill(GAPPY, "pma", smooth=0.3, constraints=False)
+    finally:
+        _Tits._initialize = original
+    assert seen[:2] == [15, 15] and seen[2] == 9
+    with pytest.raises(ValueError, match="window is both"):
+        torchfill.fill(GAPPY, "pma", window=15)
+
+
+@pytest.mark.parametrize("method,old,new", [("tucker_tnn", "lam", "lam_tnn"),
+                                            ("pca_train", "variance", "energy"),
+                                            ("pca_blackout", "variance", "energy"),
+                                            ("cp", "patience", "rank_patience"),
+                                            ("spc", "patience", "rank_patience")])
+def test_one_name_per_idea_old_names_deprecated(method, old, new):
+    with pytest.warns(DeprecationWarning, match=f"{old}.*{new}"):
+        solver = get_solver(method, **{old: 0.5 if new != "rank_patience" else 3})
+    assert getattr(solver, new) == (0.5 if new != "rank_patience" else 3)
+    assert old not in type(solver).declared_params()
 
 
 def test_public_face_exports_and_not_converged_warning():
@@ -263,3 +321,182 @@ def test_public_face_exports_and_not_converged_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error", torchfill.NotConvergedWarning)
         get_solver("linear").fit(torch.from_numpy(GAPPY))          # one-shot: converged
+
+
+# -- solvers as modules: buffers, devices and dtypes, state_dict, other data, threads, batches ----
+def _fitted_tensors(solver: Solver) -> dict[str, torch.Tensor]:
+    """Every tensor the fitted solver holds as a plain attribute (should be none)."""
+    found = {}
+    for module in solver.modules():
+        for key, value in vars(module).items():
+            if isinstance(value, torch.Tensor):
+                found[key] = value
+    return found
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_fitted_tensors_are_buffers_and_move_with_to(method):
+    solver, out = fitted(method, "float64")
+    assert _fitted_tensors(solver) == {}, "fitted tensors outside buffers/parameters"
+    names = dict(solver.named_buffers())
+    assert {"M_", "Omega_", "mu_", "sigma_"} <= set(names)
+    moved = copy.deepcopy(solver).to(torch.float32)
+    for name, buf in moved.named_buffers():
+        assert not buf.is_floating_point() or buf.dtype == torch.float32, name
+    for name, par in moved.named_parameters():
+        assert par.dtype == torch.float32, name
+    est = moved.forward()
+    assert est.dtype == torch.float32
+    torch.testing.assert_close(est.double(), solver.forward(), rtol=1e-4, atol=1e-2)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_state_dict_loads_into_a_fresh_solver_and_transform_agrees(method):
+    solver, out = fitted(method, "float64")
+    buf = io.BytesIO()
+    torch.save(solver.state_dict(), buf)
+    buf.seek(0)
+    state = torch.load(buf, weights_only=True)                      # no pickle needed
+    fresh = get_solver(method, **solver.get_params())
+    fresh.load_state_dict(state)
+    X = torch.from_numpy(GAPPY)
+    assert torch.equal(fresh.transform(X), out)
+    assert fresh.n_iter_ == solver.n_iter_ and fresh.history_ == solver.history_
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_transform_on_other_data_raises_clearly(method):
+    solver, _ = fitted(method, "float64")
+    X = torch.from_numpy(GAPPY)
+    with pytest.raises(ValueError, match="fitted on.*found shape"):
+        solver.transform(X[:1])                                     # one frame, not the fitted 120
+    other = X.clone()
+    other[~torch.from_numpy(MASK)] += 10.0
+    with pytest.raises(ValueError, match="other data"):
+        solver.transform(other)
+    with pytest.raises(RuntimeError, match="not fitted"):
+        make(method).transform(X)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16], ids=["float16", "bfloat16"])
+@pytest.mark.parametrize("method", METHODS)
+def test_half_precision_in_caller_dtype_out(method, dtype):
+    """float16/bfloat16 data are computed in float32; the fill comes back in the caller's dtype,
+    observed samples bit for bit, every gap filled close to the float32 fill."""
+    X = torch.from_numpy(GAPPY).to(dtype)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = make(method).fit_transform(X, **FIT_DATA.get(method, {}))
+        filled = torchfill.fill(X, method=method, constraints=False, params=cheap(method),
+                                **FIT_DATA.get(method, {}))
+        ref = make(method).fit_transform(X.float(), **FIT_DATA.get(method, {}))
+    for result in (out, filled):
+        assert result.dtype == dtype and result.shape == X.shape
+        assert_observed_kept(result, X)
+        assert bool(torch.isfinite(result).all()), "a gap left NaN in half precision"
+    scale = float(torch.nan_to_num(X.float()).abs().max())
+    assert float((out.float() - ref).abs().max()) <= 0.02 * scale
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_batch_of_sequences_in_one_call(method):
+    B = 3
+    masks = np.stack([np.roll(MASK, 7 * b, axis=0) for b in range(B)])
+    truths = np.stack([motion(seed=b) for b in range(B)])
+    X = torch.from_numpy(np.where(masks[..., None], np.nan, truths))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        solver = make(method)
+        out = solver.fit_transform(X, **FIT_DATA.get(method, {}))
+        one = make(method).fit_transform(X[1], **FIT_DATA.get(method, {}))
+    assert out.shape == X.shape and out.dtype == X.dtype
+    keep = torch.from_numpy(~masks)
+    assert torch.equal(out[keep], X[keep]) and bool(torch.isfinite(out).all())
+    assert torch.equal(out[1], one)                                 # = the sequence on its own
+    fresh = get_solver(method, **solver.get_params())
+    fresh.load_state_dict(solver.state_dict())
+    assert torch.equal(fresh.transform(X), out)
+
+
+def test_fill_takes_a_batch_of_eight_sequences():
+    B = 8
+    masks = np.stack([np.roll(MASK, 5 * b, axis=0) for b in range(B)])
+    X = np.where(masks[..., None], np.nan, np.stack([motion(seed=b) for b in range(B)]))
+    out = torchfill.fill(X, "svt", constraints=False)
+    assert out.shape == X.shape and np.isfinite(out).all()
+    np.testing.assert_array_equal(out[~masks], X[~masks])
+    np.testing.assert_array_equal(out[3], torchfill.fill(X[3], "svt", constraints=False))
+    T32 = torch.from_numpy(X).float()
+    out32 = torchfill.fill(T32, "linear", mask=torch.zeros(masks.shape, dtype=torch.bool))
+    assert out32.dtype == torch.float32 and out32.shape == T32.shape
+
+
+def test_one_solver_from_two_threads_gives_each_its_own_fill():
+    """fit_transform holds the solver's lock: two threads sharing one solver each get the fill of
+    their own data (without it one got the other's estimate, or crashed mid-fit)."""
+    import threading
+
+    data = [torch.from_numpy(np.where(MASK[..., None], np.nan, motion(seed=s))) for s in (0, 3)]
+    refs = [get_solver("svt", max_iter=30).fit_transform(x) for x in data]
+    solver = get_solver("svt", max_iter=30)
+    results, errors = {}, []
+
+    def run(k):
+        try:
+            for _ in range(3):
+                results[k] = solver.fit_transform(data[k])
+                assert torch.equal(results[k], refs[k])
+        except Exception as err:                                  # noqa: BLE001 - reported below
+            errors.append(err)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        threads = [threading.Thread(target=run, args=(k,)) for k in (0, 1)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert errors == []
+
+
+def test_state_dict_round_trip_in_a_fresh_process(tmp_path):
+    """A fitted solver saved here loads into a fresh solver in a new Python process, whose
+    transform gives the same fill bit for bit."""
+    import subprocess
+    import sys
+
+    X = torch.from_numpy(GAPPY)
+    for method, params in (("tucker_tnn", {"max_iter": 20}), ("grad_cp", cheap("grad_cp"))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            solver = get_solver(method, **params)
+            out = solver.fit_transform(X)
+        torch.save({"state": solver.state_dict(), "X": X, "out": out}, tmp_path / f"{method}.pt")
+        code = (
+            "import sys, torch, torchfill\n"
+            f"saved = torch.load({str(tmp_path / (method + '.pt'))!r}, weights_only=True)\n"
+            f"fresh = torchfill.get_solver({method!r}, **{params!r})\n"
+            "fresh.load_state_dict(saved['state'])\n"
+            "sys.exit(0 if torch.equal(fresh.transform(saved['X']), saved['out']) else 3)\n")
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_cli_param_goes_to_the_method_not_to_fill(tmp_path, monkeypatch):
+    """``-p window=15`` with pma sets pma's window; ``--window`` stays fill()'s."""
+    from torchfill.cli import main
+
+    src = tmp_path / "gappy.npy"
+    np.save(src, GAPPY)
+    calls = []
+    real = torchfill.fill
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(torchfill, "fill", spy)
+    code = main(["fill", str(src), "-o", str(tmp_path / "out.npy"), "-m", "pma", "-p", "window=15",
+                 "--window", "0", "--no-constraints", "-q"])
+    assert code == 0
+    assert calls[0]["params"] == {"window": 15} and calls[0]["window"] is None

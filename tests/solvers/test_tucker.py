@@ -34,7 +34,7 @@ def test_apg_agrees_with_closed_form():
 def test_apg_solver_matches_closed_form_solver():
     X, _, _ = _low_rank((50, 10, 3), (5, 5, 3), seed=3)
     X[torch.rand(X.shape, generator=torch.Generator().manual_seed(4)) < 0.2] = float("nan")
-    common = dict(max_iter=15, holdout=None, lam=0.05, rho_x=0.2)
+    common = dict(max_iter=15, holdout=None, lam_tnn=0.05, rho_x=0.2)
     a = get_solver("tucker_tnn", x_step="closed_form", **common).fit_transform(X)
     b = get_solver("tucker_tnn", x_step="apg", apg_step=0.7, apg_iter=400, **common).fit_transform(X)
     assert torch.allclose(a, b, atol=1e-6)
@@ -82,7 +82,7 @@ def test_exact_recovery_low_multilinear_rank(method, seed):
     missing = torch.rand(X.shape, generator=torch.Generator().manual_seed(100 + seed)) < 0.3
     Xm = X.clone()
     Xm[missing] = float("nan")
-    extra = {"lam": 0.0} if method == "tucker_tnn" else {}
+    extra = {"lam_tnn": 0.0} if method == "tucker_tnn" else {}
     solver = get_solver(method, rank=(5, 5, 3), delta_rank=0, holdout=None, max_iter=300,
                         tol=1e-12, rho_x=0.0, **extra)
     out = solver.fit_transform(Xm)

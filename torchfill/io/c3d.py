@@ -158,6 +158,10 @@ def parse(buf: bytes, path) -> Layout:
     data_block = _uint(lay, "POINT:DATA_START", int(header[8])) or int(header[8])
     lay.data_offset = (data_block - 1) * 512
     lay.analog_words = int(header[2])
+    if lay.n_points == 0:
+        _fail(path, f"no 3-D points in this C3D (POINT:USED is 0; {lay.n_frames} frames of "
+                    f"analog data only)" if lay.analog_words else
+              "no 3-D points in this C3D (POINT:USED is 0)")
     if data_block < 2 or lay.data_offset < param_start + 4:
         _fail(path, f"corrupt C3D: data block {data_block} overlaps the header or parameters")
     if not np.isfinite(lay.rate) or lay.rate < 0:
@@ -450,9 +454,13 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
     MarkerSequence
         ``points`` in the file's units (NaN where the residual is negative, a coordinate is NaN,
         or the sample is exactly (0, 0, 0): Qualisys stores gaps that way); ``meta`` holds
-        ``point_index`` (the POINT index of each marker), ``first_frame``, ``excluded``
-        (``[(index, label, reason)]``) and ``c3d`` (processor, storage format, scale, number of
-        points, analog channels and rate).
+        ``point_index`` (the POINT index of each marker), ``excluded``
+        (``[(index, label, reason)]``), ``c3d`` (processor, storage format, scale, number of
+        points, analog channels and rate) and, when the file marks any, ``filled``: the (T, J)
+        samples stored with a 4th word of 0 (residual 0 and no camera: the C3D mark of an
+        interpolated sample), counted only in files whose other samples carry residuals or camera
+        masks (many writers store 0 for every sample; there only the -0.0 that torchfill writes
+        in IEEE-float files marks a fill). ``first_frame`` is the file's first frame number.
     """
     path = Path(path)
     buf, lay = _load(path)
@@ -463,14 +471,28 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
     analog_used = _uint(lay, "ANALOG:USED", 0)
     meta = {
         "point_index": keep,
-        "first_frame": lay.first_frame,
         "excluded": [(i, raw.labels[i], dropped[i]) for i in sorted(dropped)],
         "c3d": {"processor": lay.processor, "format": "float32" if lay.is_float else "int16",
                 "scale": lay.scale, "n_points": lay.n_points, "analog_channels": analog_used,
                 "analog_rate": _real(lay, "ANALOG:RATE", 0.0) if analog_used else 0.0},
     }
+    filled = interpolated(raw)[:, keep]
+    if filled.any():
+        meta["filled"] = filled
     return MarkerSequence(points=raw.xyz[:, keep], labels=[raw.labels[i] for i in keep],
-                          rate=lay.rate, units=units, source=path, meta=meta)
+                          rate=lay.rate, units=units, source=path, meta=meta,
+                          first_frame=lay.first_frame)
+
+
+def interpolated(raw: RawPoints) -> np.ndarray:
+    """``(T, P)`` valid samples whose 4th word is 0 (residual 0, no camera: interpolated or
+    filled, per the C3D convention) in a file whose other valid samples carry residuals or camera
+    masks; in a file that stores 0 for every sample, only those stored as -0.0 (torchfill's mark
+    of a fill, see :func:`_encode`)."""
+    zero = raw.valid & (raw.word == 0)
+    if (raw.valid & (raw.word > 0)).any():
+        return zero
+    return zero & np.signbit(raw.word)          # torchfill's -0.0 (IEEE-float files)
 
 
 _UNIT_NAMES = {"mm": "mm", "millimeter": "mm", "millimeters": "mm", "millimetre": "mm",
@@ -494,14 +516,21 @@ def write(seq: MarkerSequence, path) -> None:
 
     When ``seq.source`` is a C3D file, the output is that file's bytes with only the filled
     samples changed (x, y, z and the 4th word, set to 0: residual 0 and camera mask 0, the C3D
-    mark of an interpolated point). Filled samples are ``seq.meta["filled"]`` when present
+    mark of an interpolated point; -0.0 in IEEE-float files, see :func:`_encode`) and the
+    samples left missing written as missing: a source that stored a gap as (0, 0, 0) with a
+    valid residual (Qualisys) gets residual -1 there, so that no reader takes the gap for a
+    marker at the origin. Filled samples are ``seq.meta["filled"]`` when present
     (:func:`torchfill.fill` sets it), else the samples invalid in the source and finite in
-    ``seq``. Everything else (header, parameters, analog data, events, untouched and unfilled
-    samples, points that are not markers) stays byte-identical. Other edits to ``seq`` are not
-    written (a warning says how many). For integer files the filled coordinates are rounded to
-    the file's scale (``POINT:SCALE``).
+    ``seq``. Everything else (header, parameters, analog data, events, observed samples and
+    their residuals, gaps already marked invalid, points that are not markers) stays
+    byte-identical. Other edits to ``seq`` are not written (a warning says how many). For
+    integer files the filled coordinates are rounded to the file's scale (``POINT:SCALE``).
 
-    Without a C3D source, a fresh float-format C3D is written with the ``c3d`` package's Writer.
+    Without a C3D source, a fresh float-format C3D is written with the ``c3d`` package's Writer:
+    first frame ``seq.first_frame`` (0, the number of arrays, becomes 1; one the header cannot
+    hold becomes 1 with a warning), missing samples residual -1 and zeros, filled
+    samples (``meta["filled"]``) residual 0, observed samples residual 1 (the smallest non-zero
+    residual: their true residual is unknown, and 0 would mark them as interpolated).
     """
     path = Path(path)
     check_writable(seq, path)
@@ -532,7 +561,9 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     out = bytearray(buf)
     words = np.ndarray((lay.n_frames, lay.frame_words), lay.storage_dtype, buffer=out,
                        offset=lay.data_offset)
-    t, j = np.nonzero(filled)
+    # samples the source already holds as filled, unchanged, keep their bytes
+    same = interpolated(raw)[:, index] & (seq.points == raw.xyz[:, index]).all(axis=2)
+    t, j = np.nonzero(filled & ~same)
     xyz = seq.points[t, j]
     fits = _storable(lay, xyz)
     if not fits.all():
@@ -543,6 +574,17 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     for k in range(3):
         words[t, col + k] = encoded[:, k]
     words[t, col + 3] = zero
+    # a sample left missing is written as missing, whatever mark the source used for it (Qualisys
+    # stores gaps as (0, 0, 0) with a valid residual, which other readers take for data)
+    done = same & filled
+    done[t, j] = True
+    gone = ~done & ~raw.valid[:, index] & ~(raw.word[:, index] < 0)
+    t, j = np.nonzero(gone)
+    col = 4 * index[j]
+    zeros, invalid = _encode_missing(lay)
+    for k in range(3):
+        words[t, col + k] = zeros
+    words[t, col + 3] = invalid
     atomic_write(path, lambda handle: handle.write(out))
 
 
@@ -581,18 +623,30 @@ def _off_origin(xyz: np.ndarray, step: float) -> np.ndarray:
 
 
 def _encode(lay: Layout, xyz: np.ndarray) -> tuple[np.ndarray, object]:
-    """Stored words for coordinates ``xyz`` (n, 3) and for a 4th word of 0, in the file's format."""
+    """Stored words for coordinates ``xyz`` (n, 3) and the 4th word of a filled sample, in the
+    file's format. The 4th word is 0 (residual 0, no camera: interpolated); in IEEE-float files
+    it is -0.0, which every reader takes for 0 but which marks the fill even in files whose
+    measured samples also store 0 (:func:`interpolated`)."""
     if lay.is_float:
         xyz = _off_origin(xyz.astype(np.float32).astype(np.float64), 1e-30)
         if lay.processor == "dec":
             return _encode_dec(xyz.reshape(-1)).reshape(xyz.shape), np.uint32(0)
         if np.abs(xyz).max(initial=0.0) > np.finfo(np.float32).max:
             raise OverflowError("value out of the float32 range")
-        return xyz.astype(np.float32), np.float32(0.0)
+        return xyz.astype(np.float32), np.float32(-0.0)
     q = np.rint(xyz / lay.scale)
     if q.size and (q.min() < -32768 or q.max() > 32767):
         raise OverflowError(f"value beyond the int16 range at POINT:SCALE {lay.scale:g}")
     return _off_origin(q, 1.0).astype(np.int16), np.int16(0)
+
+
+def _encode_missing(lay: Layout) -> tuple[object, object]:
+    """Stored words of a missing sample: coordinates 0 and a 4th word of -1 (C3D: invalid)."""
+    if not lay.is_float:
+        return np.int16(0), np.int16(-1)
+    if lay.processor == "dec":
+        return np.uint32(0), _encode_dec(np.array([-1.0]))[0]
+    return np.float32(0.0), np.float32(-1.0)
 
 
 #: C3D dimensions are single bytes: at most 255 strings per parameter, 255 bytes per string.
@@ -652,8 +706,12 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     for name, desc, data, dims in _label_params(labels, path):
         writer.point_group.add_param(name, desc=desc, bytes_per_element=-1, bytes=data,
                                      dimensions=dims)
-    first = int(seq.meta.get("first_frame", 1) or 1)
-    writer.set_start_frame(max(first, 1))
+    first = int(seq.first_frame) or 1          # the c3d package writes a first frame 0 as 1
+    if first < 0 or (first > 1 and first + T - 1 > 0xFFFF):
+        warnings.warn(f"{path.name}: first frame {first} does not fit a C3D header (frames "
+                      f"0-65535); written as 1", stacklevel=4)
+        first = 1
+    writer.set_start_frame(first)
     valid = np.isfinite(seq.points).all(axis=2)
     big = valid & (np.abs(seq.points) > np.finfo(np.float32).max).any(axis=2)
     if big.any():
@@ -663,7 +721,10 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     frames = np.zeros((T, J, 5), dtype=np.float32)
     frames[..., :3] = np.where(valid[..., None], seq.points, 0.0)
     frames[valid, :3] = _off_origin(frames[valid, :3].astype(np.float64), 1e-30)
-    frames[..., 3] = np.where(valid, 0.0, -1.0)
+    filled = np.asarray(seq.meta.get("filled", np.zeros_like(valid)), dtype=bool)
+    if filled.shape != valid.shape:
+        filled = np.zeros_like(valid)
+    frames[..., 3] = np.where(valid, np.where(filled, 0.0, 1.0), -1.0)
     analog = np.zeros((0, 1), dtype=np.float32)
     writer.add_frames([(frames[t], analog) for t in range(T)])
     with warnings.catch_warnings():

@@ -18,14 +18,30 @@ confidence. A warning says so. The index chosen in each frame is ``meta["person"
 Writing
 -------
 A sequence read from a folder is written back as the same files: the tracked person's filled
-keypoints get their new ``x, y``; their confidence is left as it was (so a filled keypoint reads
-back with the confidence that made it missing: 0, or below ``min_confidence``); every other value,
-field and person of each JSON is kept. Files with nothing filled are copied byte for byte; the
-others are re-serialized compactly, as OpenPose writes them (numbers keep their exact value). A
-frame that had no person but gets filled keypoints gains one person, ``person_id [-1]``, with
-confidence 0 on every keypoint (unfilled keypoints ``0, 0, 0``, OpenPose's "not detected").
-Any other ``(T, J, 2)`` sequence is written as new files ``<folder name>_<frame>_keypoints.json``
-(confidence 1 observed, 0 missing or filled). All files are built before anything is written.
+keypoints get their new ``x, y`` and a confidence (below); every other value (observed keypoints
+and their confidences bit for bit), field and person of each JSON is kept. The person also gets
+``"torchfill_filled": [j, ...]``, the indices of its filled keypoints (other readers ignore an
+unknown field; :func:`read` returns them as ``meta["filled"]``, so that a second fill keeps them
+but does not fit to them). Files with nothing filled are copied byte for byte; the others are
+re-serialized compactly, as OpenPose writes them (numbers keep their exact value). A frame that
+had no person but gets filled keypoints gains one person, ``person_id [-1]``, unfilled keypoints
+``0, 0, 0`` (OpenPose's "not detected"). Any other ``(T, J, 2)`` sequence is written as new files
+``<folder name>_<frame>_keypoints.json`` (confidence ``meta["confidence"]`` where it holds one
+for an observed keypoint, else 1; missing keypoints ``0, 0, 0``). All files are built before
+anything is written.
+
+The confidence of a filled keypoint (``fill_confidence=None``, the default) comes from the fill's
+error estimate ``meta["std"]`` (pixels, ``fill(..., return_std=True)``)::
+
+    c = c_ref * exp(-(std / s) ** 2 / 2)
+
+``c_ref`` is the median confidence of that keypoint where observed (1 without confidences);
+``s`` is 5 % of the person's size (the median over frames of the diagonal of the box around the
+observed keypoints; 10 px if no frame has two), so a fill whose error is as large as 5 % of the
+body keeps 61 % of the keypoint's usual confidence and one at 10 % keeps 14 % (Pose2Sim's default
+threshold, 0.3, then drops it). Without ``meta["std"]`` the error is unknown and
+``c = c_ref * UNKNOWN_STD_SHARE``. ``fill_confidence=VALUE`` (in [0, 1]) gives every filled
+keypoint that value instead. Confidences are rounded to 6 decimals, as OpenPose prints them.
 """
 from __future__ import annotations
 
@@ -53,6 +69,12 @@ MPI = ("Head", "Neck", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "
        "RKnee", "RAnkle", "LHip", "LKnee", "LAnkle", "Chest")
 LAYOUTS = {25: ("BODY_25", BODY_25), 18: ("COCO", COCO), 15: ("MPI", MPI)}
 PATTERN = "*_keypoints.json"
+#: The field a person gets listing its filled keypoints (indices).
+FILLED_FIELD = "torchfill_filled"
+#: Size of a person relative to which a fill's std is judged (see the module notes).
+SCALE_SHARE = 0.05
+#: Confidence share of a filled keypoint whose fill has no error estimate.
+UNKNOWN_STD_SHARE = 0.5
 
 
 def _fail(path, problem: str):
@@ -72,6 +94,15 @@ def frame_files(folder: Path) -> list[Path]:
         digits = re.findall(r"\d+", f.name[:-len("_keypoints.json")])
         return (int(digits[-1]) if digits else -1, f.name)
     return sorted(files, key=order)
+
+
+def _filled_field(person, n: int, path: Path, i: int) -> list[int]:
+    """The keypoint indices a person's ``torchfill_filled`` field lists (checked)."""
+    value = person.get(FILLED_FIELD, []) if isinstance(person, dict) else []
+    if not (isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool)
+                                            and 0 <= v < n for v in value)):
+        _fail(path, f"people[{i}].{FILLED_FIELD} expected keypoint indices 0-{n - 1}")
+    return value
 
 
 def parse_frame(path: Path, key: str, width: int) -> tuple[dict, list[np.ndarray | None]]:
@@ -126,27 +157,29 @@ def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
          markers_only: bool = True) -> MarkerSequence:
     """Read an OpenPose output folder into a ``(T, J, 2)`` :class:`MarkerSequence` (pixels).
 
-    ``rate`` is the video frame rate (not stored by OpenPose; 30 by default).
-    ``include_filled=True`` reads a folder torchfill has filled with its fills: a keypoint with
-    confidence 0 but coordinates other than (0, 0) (OpenPose writes an undetected keypoint as
-    0, 0, 0) counts as observed, and ``meta["filled"]`` marks it. ``markers_only`` is accepted
-    for a uniform signature and ignored.
+    ``rate`` is the video frame rate (not stored by OpenPose; 30 by default). Keypoints a
+    person's ``torchfill_filled`` field lists are read whatever their confidence, and
+    ``meta["filled"]`` marks them. ``include_filled=True`` also takes a keypoint with confidence
+    0 but coordinates other than (0, 0) (OpenPose writes an undetected keypoint as 0, 0, 0) for
+    a fill (folders written before the field existed). ``markers_only`` is accepted for a uniform
+    signature and ignored.
     """
     folder = Path(path)
     if not (isinstance(min_confidence, (int, float)) and 0.0 <= min_confidence <= 1.0):
         _fail(folder, f"min_confidence expected a number in [0, 1], found {min_confidence!r}")
     width = 4 if key.endswith("_3d") else 3
     files = frame_files(folder)
-    points, conf, chosen, crowded = [], [], [], 0
+    points, conf, chosen, crowded, marked = [], [], [], 0, []
     J, previous = None, None
     for f in files:
-        _, people = parse_frame(f, key, width)
+        obj, people = parse_frame(f, key, width)
         i = _choose(people, previous)
         crowded = max(crowded, sum(p is not None for p in people))
         chosen.append(i)
         if i < 0:
             points.append(None)
             conf.append(None)
+            marked.append([])
             continue
         K = people[i]
         if J is None:
@@ -154,6 +187,8 @@ def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
         elif K.shape[0] != J:
             _fail(f, f"{K.shape[0]} keypoints, the frames before have {J}")
         seen = (K[:, -1] > 0) & (K[:, -1] >= min_confidence)
+        marked.append(_filled_field(obj["people"][i], K.shape[0], f, i))
+        seen[marked[-1]] = True                       # torchfill's fills, whatever confidence
         if include_filled:
             seen |= (K[:, -1] == 0) & (K[:, :-1] != 0).any(axis=1)
         points.append(np.where(seen[:, None], K[:, :-1], np.nan))
@@ -170,27 +205,73 @@ def read(path, *, min_confidence: float = 0.0, key: str = "pose_keypoints_2d",
                       "previous frame's choice, see meta['person'])", UserWarning, stacklevel=2)
     meta = {"format": "openpose", "layout": layout, "key": key, "files": [f.name for f in files],
             "person": chosen, "confidence": C, "min_confidence": float(min_confidence)}
+    filled = np.zeros(P.shape[:2], dtype=bool)
+    for t, js in enumerate(marked):
+        filled[t, js] = True
     if include_filled:
-        meta["filled"] = (C == 0) & np.isfinite(P).all(axis=2)
+        filled |= (C == 0) & np.isfinite(P).all(axis=2)
+    filled &= np.isfinite(P).all(axis=2)
+    if filled.any():
+        meta["filled"] = filled
     return MarkerSequence(points=P, labels=list(names or (f"K{j}" for j in range(J))),
                           rate=float(rate), units="px", source=folder, meta=meta)
 
 
 # -- writing ---------------------------------------------------------------------------------------
-def write(seq: MarkerSequence, path) -> None:
-    """Write ``seq`` as an OpenPose folder (see the module notes); nothing is written on error."""
+def write(seq: MarkerSequence, path, *, fill_confidence: float | None = None) -> None:
+    """Write ``seq`` as an OpenPose folder (see the module notes); nothing is written on error.
+
+    ``fill_confidence``: the confidence of every filled keypoint, in [0, 1] (default: derived
+    from ``meta["std"]``, see the module notes).
+    """
     folder = Path(path)
     if not isinstance(seq, MarkerSequence):
         _fail(folder, f"expected a MarkerSequence to write, found {type(seq).__name__}")
+    if fill_confidence is not None and not (
+            isinstance(fill_confidence, (int, float)) and not isinstance(fill_confidence, bool)
+            and 0.0 <= fill_confidence <= 1.0):
+        _fail(folder, f"fill_confidence expected a number in [0, 1], found {fill_confidence!r}")
     if folder.exists() and not folder.is_dir():
         _fail(folder, "exists and is not a folder")
     if np.isinf(seq.points).any():
         _fail(folder, "cannot write infinite coordinates (use NaN for missing)")
     if _is_write_back(seq):
-        files = _write_back_files(seq, folder)
+        files = _write_back_files(seq, folder, fill_confidence)
     else:
-        files = _fresh_files(seq, folder)
+        files = _fresh_files(seq, folder, fill_confidence)
     _write_folder(folder, files)
+
+
+def fill_confidences(points: np.ndarray, observed: np.ndarray, confidence: np.ndarray | None,
+                     std: np.ndarray | None, fill_confidence: float | None) -> np.ndarray:
+    """``(T, J)`` confidences for filled keypoints (the module notes give the mapping).
+
+    ``points`` (T, J, 2) with fills, ``observed`` (T, J) the keypoints seen, ``confidence`` their
+    confidences (None: 1), ``std`` the fill's error estimate in pixels (None: unknown)."""
+    T, J = observed.shape
+    if fill_confidence is not None:
+        return np.full((T, J), float(fill_confidence))
+    conf = np.where(observed, 1.0 if confidence is None else confidence, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)           # keypoints never observed
+        ref = np.nanmedian(conf, axis=0)
+    ref = np.where(np.isfinite(ref), ref, 1.0)
+    if std is None or np.shape(std) != (T, J):
+        share = np.full((T, J), UNKNOWN_STD_SHARE)
+    else:
+        xy = np.where(observed[..., None], points, np.nan)
+        enough = observed.sum(axis=1) >= 2
+        size = 0.0
+        if enough.any():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                span = np.nanmax(xy[enough], axis=1) - np.nanmin(xy[enough], axis=1)
+            size = float(np.median(np.hypot(span[:, 0], span[:, 1])))
+        s = SCALE_SHARE * size if size > 0 else 10.0
+        sd = np.asarray(std, dtype=np.float64)
+        share = np.where(np.isfinite(sd), np.exp(-0.5 * (np.nan_to_num(sd) / s) ** 2),
+                         UNKNOWN_STD_SHARE)
+    return np.round(np.clip(ref[None, :] * share, 0.0, 1.0), 6)
 
 
 def _is_write_back(seq: MarkerSequence) -> bool:
@@ -198,7 +279,8 @@ def _is_write_back(seq: MarkerSequence) -> bool:
             and len(seq.meta.get("files", ())) == seq.n_frames)
 
 
-def _write_back_files(seq: MarkerSequence, folder: Path) -> dict[str, bytes]:
+def _write_back_files(seq: MarkerSequence, folder: Path,
+                      fill_confidence: float | None) -> dict[str, bytes]:
     key, meta = seq.meta["key"], seq.meta
     if not seq.source.is_dir():
         _fail(folder, f"source folder {seq.source} is gone")
@@ -216,10 +298,14 @@ def _write_back_files(seq: MarkerSequence, folder: Path) -> dict[str, bytes]:
         warnings.warn(f"{folder}: {skipped} sample(s) differ from the source but were not filled "
                       "there; they are not written", UserWarning, stacklevel=3)
     width = seq.points.shape[2] + 1
+    observed = ~source.mask & ~source.meta.get("filled", np.zeros_like(filled))
+    conf = fill_confidences(seq.points, observed, source.meta["confidence"],
+                            seq.meta.get("std"), fill_confidence)
+    had = source.meta.get("filled", np.zeros_like(filled))
     out = {}
     for t, name in enumerate(meta["files"]):
         raw = (seq.source / name).read_bytes()
-        if not filled[t].any():
+        if not filled[t].any() and not had[t].any():
             out[name] = raw
             continue
         obj = json.loads(raw)
@@ -230,24 +316,42 @@ def _write_back_files(seq: MarkerSequence, folder: Path) -> dict[str, bytes]:
         values = obj["people"][person][key]
         for j in np.flatnonzero(filled[t]):
             values[width * j:width * j + width - 1] = [float(v) for v in seq.points[t, j]]
+            values[width * j + width - 1] = float(conf[t, j])
+        obj["people"][person].pop(FILLED_FIELD, None)
+        if filled[t].any():
+            obj["people"][person][FILLED_FIELD] = [int(j) for j in np.flatnonzero(filled[t])]
         out[name] = json.dumps(obj, separators=(",", ":")).encode("utf-8")
     return out
 
 
-def _fresh_files(seq: MarkerSequence, folder: Path) -> dict[str, bytes]:
+def _fresh_files(seq: MarkerSequence, folder: Path,
+                 fill_confidence: float | None) -> dict[str, bytes]:
     if seq.points.shape[2] != 2:
         _fail(folder, f"OpenPose keypoints are 2-D; found {seq.points.shape[2]} coordinates")
-    observed = np.isfinite(seq.points).all(axis=2)
-    filled = np.asarray(seq.meta.get("filled", np.zeros_like(observed)), dtype=bool)
-    if filled.shape != observed.shape:
-        filled = np.zeros_like(observed)
-    conf = np.where(observed & ~filled, 1.0, 0.0)
-    xy = np.where(observed[..., None], seq.points, 0.0)
+    present = np.isfinite(seq.points).all(axis=2)
+    filled = np.asarray(seq.meta.get("filled", np.zeros_like(present)), dtype=bool)
+    if filled.shape != present.shape:
+        filled = np.zeros_like(present)
+    filled &= present
+    observed = present & ~filled
+    given = seq.meta.get("confidence")
+    given = (np.asarray(given, dtype=np.float64) if given is not None
+             and np.shape(given) == present.shape else None)
+    own = np.where(observed & np.isfinite(given) & (given > 0), given, 1.0) \
+        if given is not None else np.ones(present.shape)
+    made = fill_confidences(seq.points, observed, own, seq.meta.get("std"), fill_confidence)
+    conf = np.where(observed, own, np.where(filled, made, 0.0))
+    xy = np.where(present[..., None], seq.points, 0.0)
     values = np.concatenate([xy, conf[..., None]], axis=2).reshape(seq.n_frames, -1)
     name = folder.name or "frames"
-    return {f"{name}_{t:012d}_keypoints.json": json.dumps(
-        {"version": 1.3, "people": [{"person_id": [-1], "pose_keypoints_2d": row.tolist()}]},
-        separators=(",", ":")).encode("utf-8") for t, row in enumerate(values)}
+    out = {}
+    for t, row in enumerate(values):
+        person = {"person_id": [-1], "pose_keypoints_2d": row.tolist()}
+        if filled[t].any():
+            person[FILLED_FIELD] = [int(j) for j in np.flatnonzero(filled[t])]
+        out[f"{name}_{t:012d}_keypoints.json"] = json.dumps(
+            {"version": 1.3, "people": [person]}, separators=(",", ":")).encode("utf-8")
+    return out
 
 
 def _write_folder(folder: Path, files: dict[str, bytes]) -> None:

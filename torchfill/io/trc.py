@@ -20,6 +20,21 @@ Writing a sequence read from a TRC keeps the source's header lines and every unt
 byte-for-byte and changes only the cells of filled samples, formatted with as many decimals as
 the file's own cells. Without a TRC source, a fresh file is written.
 
+Every row torchfill writes has all its cells: a missing sample is three empty cells, and a row
+whose last cell is empty ends with one more tab, as OpenSim's own writer ends every row.
+OpenSim 4.6's ``TRCFileAdapter`` drops a trailing empty token and then rejects the file
+("Unexpected number of columns"); Pose2Sim reads the rows with ``pandas.read_csv(sep="\t",
+skiprows=4)`` under the ``X1 Y1 Z1 ...`` line, which therefore ends with a tab too (a row one
+cell longer than that line would turn the frame column into pandas' index), and drops the
+``Unnamed`` column the trailing tab makes. A write-back pads the source's short rows the same way
+(their cells are kept).
+
+Filled samples are recorded in the first line, after the file name, as one more cell
+``torchfill-filled=M:A-B,...`` (marker number M as in ``XM``, data rows A to B, 1-based,
+inclusive). OpenSim keeps that line as the table's ``header`` metadata (and writes it back),
+Pose2Sim keeps it as a header line; the reader returns it as ``meta["filled"]``, so that a second
+fill keeps those samples but does not fit to them (:func:`torchfill.fill`).
+
 References
 ----------
 .. [1] OpenSim documentation, *Marker (.trc) Files*,
@@ -51,9 +66,15 @@ def _cells(line: str) -> list[str]:
     return line.rstrip("\r\n").split("\t")
 
 
+_LINE = re.compile(r"[^\r\n]*(?:\r\n|\n|\r|$)")
+
+
 def _split_lines(text: str) -> list[str]:
-    """Lines with their line endings kept (so a write-back can reproduce them)."""
-    return text.splitlines(keepends=True)
+    """Lines with their line endings kept (so a write-back can reproduce them). Only CR, LF and
+    CRLF end a line: ``str.splitlines`` would also break at control characters such as \\x1e
+    inside a cell."""
+    lines = _LINE.findall(text)
+    return [line for line in lines if line]
 
 
 class _Parsed:
@@ -192,10 +213,82 @@ def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> Mark
         _fail(path, f"header DataRate/CameraRate is {rate}, expected a positive number")
     if not rate and len(times) > 1 and np.isfinite(times[:2]).all() and times[1] > times[0]:
         rate = 1.0 / (times[1] - times[0])
-    meta = {"frame_numbers": frames.astype(np.int64), "time": times,
-            "first_frame": int(frames[0]) if np.isfinite(frames[0]) else 1}
+    numbers = np.where(np.isfinite(frames), frames, 0)
+    numbers = np.clip(numbers, -2**62, 2**62).astype(np.int64)
+    meta = {"frame_numbers": numbers, "time": times}
+    filled = _filled_runs(parsed, len(frames), J)
+    if filled is not None:
+        filled &= np.isfinite(points).all(axis=2)
+        if filled.any():
+            meta["filled"] = filled
+    first = int(numbers[0]) if np.isfinite(frames[0]) and abs(frames[0]) < 2**62 else 1
     return MarkerSequence(points=points, labels=parsed.labels, rate=float(rate or 100.0),
-                          units=parsed.header.get("Units", "mm"), source=path, meta=meta)
+                          units=parsed.header.get("Units", "mm"), source=path, meta=meta,
+                          first_frame=first)
+
+
+_FILLED_KEY = "torchfill-filled="
+
+
+def _filled_runs(parsed: "_Parsed", T: int, J: int) -> np.ndarray | None:
+    """``(T, J)`` filled samples named in the first line's ``torchfill-filled=`` cell (None if
+    absent; a warning and None if it does not fit this file)."""
+    cells = [c.strip() for c in _cells(parsed.lines[0]) if c.strip().startswith(_FILLED_KEY)]
+    if not cells:
+        return None
+    filled = np.zeros((T, J), dtype=bool)
+    try:
+        for run in filter(None, cells[-1][len(_FILLED_KEY):].split(",")):
+            m, _, rows = run.partition(":")
+            a, _, b = rows.partition("-")
+            m, a, b = int(m), int(a), int(b or a)
+            if not (1 <= m <= J and 1 <= a <= b <= T):
+                raise ValueError(run)
+            filled[a - 1:b, m - 1] = True
+    except ValueError as err:
+        warnings.warn(f"{parsed.path.name}: the first line's {_FILLED_KEY[:-1]} record does not fit "
+                      f"this file ({_first(err)}); filled samples are not marked", stacklevel=3)
+        return None
+    return filled
+
+
+def _first(err: Exception) -> str:
+    text = str(err).strip()
+    return text[:40] if text else type(err).__name__
+
+
+def _filled_cell(filled: np.ndarray | None) -> str:
+    """The ``torchfill-filled=`` cell for a (T, J) mask ('' when nothing is filled)."""
+    if filled is None or not filled.any():
+        return ""
+    runs = []
+    for j in range(filled.shape[1]):
+        col = np.concatenate([[False], filled[:, j], [False]]).astype(np.int8)
+        edges = np.flatnonzero(np.diff(col))
+        runs += [f"{j + 1}:{a + 1}-{b}" for a, b in zip(edges[::2], edges[1::2])]
+    return _FILLED_KEY + ",".join(runs)
+
+
+def _first_line(line: str, filled: np.ndarray | None) -> str:
+    """Line 1 with its ``torchfill-filled=`` cell replaced by the one for ``filled``."""
+    body = line.rstrip("\r\n")
+    ending = line[len(body):]
+    old = body.split("\t")
+    cells = [c for c in old if not c.strip().startswith(_FILLED_KEY)]
+    record = _filled_cell(filled)
+    if not record and len(cells) == len(old):
+        return line
+    while len(cells) > 1 and not cells[-1].strip():
+        cells.pop()
+    return "\t".join(cells + ([record] if record else [])) + ending
+
+
+def _full_row(cells: list[str], n: int) -> list[str]:
+    """A data row's cells, padded to ``n`` (frame, time and 3 per marker) and given one more
+    empty cell (a trailing tab) when its last cell is empty: OpenSim drops a trailing empty token."""
+    if len(cells) < n or (len(cells) == n and not cells[-1].strip()):
+        cells = cells + [""] * (n - len(cells)) + [""]
+    return cells
 
 
 def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
@@ -204,8 +297,10 @@ def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
     When ``seq.source`` is a TRC file with the same frames and markers, its header lines and all
     untouched cells are kept; only the cells of filled samples (``seq.meta["filled"]``, else the
     samples missing in the source and finite in ``seq``) change, written with the file's own
-    number of decimals (or ``decimals``). Otherwise a fresh TRC is written (6 decimals by
-    default); missing samples are empty cells.
+    number of decimals (or ``decimals``); the first line's ``torchfill-filled=`` record is set to
+    the filled samples and short rows are padded (see the module notes). Otherwise a fresh TRC is
+    written (6 decimals by default, more where a value needs them to read back the same; frame
+    numbers from ``seq.first_frame``); missing samples are empty cells.
     """
     path = Path(path)
     check_writable(seq, path)
@@ -232,18 +327,31 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
     partial = ~np.isfinite(cells_in).all(axis=2) & np.isfinite(cells_in).any(axis=2)
     rewrite = ~(partial[..., None] & np.isfinite(cells_in))
     J = seq.n_markers
+    n = 2 + 3 * J
     lines = list(parsed.lines)
-    for t in np.flatnonzero(filled.any(axis=1)):
-        i = parsed.data_lines[t]
-        body = lines[i].rstrip("\r\n")
-        ending = lines[i][len(body):]
-        cells = body.split("\t")
-        places = decimals if decimals is not None else _decimals(cells[2:])
-        cells += [""] * (2 + 3 * J - len(cells))
-        for j in np.flatnonzero(filled[t]):
-            cells[2 + 3 * j:5 + 3 * j] = _sample_cells(cells[2 + 3 * j:5 + 3 * j],
-                                                       seq.points[t, j], rewrite[t, j], places)
-        lines[i] = "\t".join(cells) + ending
+    lines[0] = _first_line(lines[0], filled)
+    rows = []
+    for t, i in enumerate(parsed.data_lines):
+        cells = lines[i].rstrip("\r\n").split("\t")
+        if filled[t].any():
+            places = decimals if decimals is not None else _decimals(cells[2:])
+            cells += [""] * (n - len(cells))
+            for j in np.flatnonzero(filled[t]):
+                cells[2 + 3 * j:5 + 3 * j] = _sample_cells(cells[2 + 3 * j:5 + 3 * j],
+                                                           seq.points[t, j], rewrite[t, j], places)
+        rows.append(cells)
+    # one row that needs a trailing tab (OpenSim) gives every row and the X1 Y1 Z1 line one, so
+    # that pandas (Pose2Sim) sees the same number of cells everywhere
+    trailing = any(len(_full_row(cells, n)) > n for cells in rows)
+    for t, (i, cells) in enumerate(zip(parsed.data_lines, rows)):
+        full = _full_row(cells, n)
+        if trailing and len(full) == n:
+            full = full + [""]
+        if full != lines[i].rstrip("\r\n").split("\t"):
+            lines[i] = "\t".join(full) + lines[i][len(lines[i].rstrip("\r\n")):]
+    axes = lines[4].rstrip("\r\n")
+    if trailing and len(axes.split("\t")) == n:
+        lines[4] = axes + "\t" + lines[4][len(axes):]
     text = "".join(lines)
     atomic_write(path, lambda handle: handle.write(text.encode(parsed.encoding)))
 
@@ -285,22 +393,32 @@ def _trc_labels_back(stored: list[str]) -> list[str]:
 def _fresh_text(seq: MarkerSequence, path: Path, decimals: int) -> str:
     T, J = seq.n_frames, seq.n_markers
     labels = storable_labels(seq.labels, _trc_label, _trc_labels_back, path)
-    first = int(seq.meta.get("first_frame", 1) or 1)
+    first = int(seq.first_frame)
     rate = float(seq.rate)
+    filled = seq.meta.get("filled")
+    filled = (np.asarray(filled, dtype=bool) & np.isfinite(seq.points).all(axis=2)
+              if filled is not None and np.shape(filled) == (T, J) else None)
+    name = re.sub(r"[\t\r\n]+", " ", path.name)
+    record = _filled_cell(filled)
     lines = [
-        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        f"PathFileType\t4\t(X/Y/Z)\t{name}" + (f"\t{record}" if record else ""),
         "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
         "OrigDataStartFrame\tOrigNumFrames",
-        f"{rate:g}\t{rate:g}\t{T}\t{J}\t{seq.units}\t{rate:g}\t{first}\t{T}",
-        "Frame#\tTime\t" + "\t".join(f"{label}\t\t" for label in labels).rstrip("\t"),
-        "\t\t" + "\t".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}" for j in range(J)),
+        f"{rate:.12g}\t{rate:.12g}\t{T}\t{J}\t{_trc_units(seq.units)}\t{rate:.12g}\t{first}\t{T}",
+        "Frame#\tTime\t" + "".join(f"{label}\t\t\t" for label in labels),
+        "\t\t" + "".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}\t" for j in range(J)),
         "",
     ]
     for t in range(T):
         row = seq.points[t].reshape(-1)
         cells = ["" if math.isnan(v) else _exact(v, decimals) for v in row.tolist()]
-        lines.append(f"{first + t}\t{t / rate:.6f}\t" + "\t".join(cells))
+        lines.append(f"{first + t}\t{t / rate:.6f}\t" + "\t".join(cells) + "\t")
     return "\n".join(lines) + "\n"
+
+
+def _trc_units(units: str) -> str:
+    """Units as one header cell (no tabs, line breaks or spaces; never empty)."""
+    return re.sub(r"\s+", "", str(units)) or "mm"
 
 
 __all__ = ["read", "write"]

@@ -1,9 +1,20 @@
 """Independent pieces of torch work (the windows of a long recording, ``auto``'s candidates) run
 in threads that share torch's intra-op threads out: torch's kernels release the GIL, and one fit's
 small products keep a second core mostly idle (bench_long 120 000 frames on 2 cores: 96 s one
-window at a time with 2 threads, 52-59 s two at a time with one each)."""
+window at a time with 2 threads, 52-59 s two at a time with one each).
+
+The share is set **per worker thread** (OpenMP's thread count is a per-thread setting), never with
+``torch.set_num_threads``: that also changes the count every thread started later begins with,
+which the rest of the caller's program would see while a fill runs. Where no OpenMP runtime can be
+reached (a torch built without it), the workers run with the count they inherit.
+"""
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
+import glob
+import os
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
@@ -15,12 +26,42 @@ import torch
 _INSIDE = threading.local()
 
 
+def _find(symbol: str, candidates: list) -> Callable[[int], Any] | None:
+    for path in candidates:
+        try:
+            fn = getattr(ctypes.CDLL(path), symbol)
+        except (OSError, AttributeError, TypeError):
+            continue
+        fn.argtypes = [ctypes.c_int]
+        return fn
+    return None
+
+
+@functools.lru_cache(maxsize=1)
+def _omp_set_num_threads() -> Callable[[int], Any] | None:
+    """``omp_set_num_threads`` of the OpenMP runtime torch runs on (it sets the calling thread's
+    team size only), or None."""
+    lib = os.path.join(os.path.dirname(torch.__file__), "lib")
+    candidates = [None]                                   # already in the process's global scope
+    candidates += sorted(glob.glob(os.path.join(lib, "libgomp*")) + glob.glob(os.path.join(lib, "libiomp*")))
+    candidates += [ctypes.util.find_library(n) for n in ("gomp", "iomp5", "omp")]
+    return _find("omp_set_num_threads", candidates)
+
+
+@functools.lru_cache(maxsize=1)
+def _mkl_set_num_threads_local() -> Callable[[int], Any] | None:
+    """MKL's thread-local thread count (what ``torch.set_num_threads`` sets for MKL), or None."""
+    lib = os.path.join(os.path.dirname(torch.__file__), "lib")
+    return _find("MKL_Set_Num_Threads_Local", [None, *sorted(glob.glob(os.path.join(lib, "libtorch_cpu*")))])
+
+
 def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None) -> Iterator:
     """``fn(item)`` for every item, yielded in the items' order whatever finishes first.
 
-    ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each thread on
-    ``torch.get_num_threads() // workers`` intra-op threads (restored afterwards); with one worker,
-    one item or inside another ``thread_map``, in this thread. The caller's warning filters are
+    ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each worker thread
+    on ``torch.get_num_threads() // workers`` intra-op threads, set in that thread only (no
+    process-wide change: other threads of the program keep their count); with one worker, one
+    item or inside another ``thread_map``, in this thread. The caller's warning filters are
     restored afterwards: ``warnings.catch_warnings`` in two threads at once can leave them changed.
     """
     items = list(items)
@@ -29,14 +70,15 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
     if workers <= 1 or getattr(_INSIDE, "active", False):
         yield from map(fn, items)
         return
+    share = max(1, threads // workers)
+    setters = [f for f in (_omp_set_num_threads(), _mkl_set_num_threads_local()) if f is not None]
 
     def run(item):
         _INSIDE.active = True
+        torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)
+        for set_threads in setters:      # this thread's OpenMP team and MKL count only
+            set_threads(share)
         return fn(item)
 
-    torch.set_num_threads(threads // workers)
-    try:
-        with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
-            yield from pool.map(run, items)
-    finally:
-        torch.set_num_threads(threads)
+    with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
+        yield from pool.map(run, items)

@@ -63,6 +63,17 @@ Tensor = torch.Tensor
 #: try them.
 DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "pca_gloersen",
                       "tucker_tnn")
+#: Default candidates that only run when interior gaps longer than ``LENGTH_EDGES[0]`` frames
+#: hold at least ``INTERIOR_SHARE`` of the missing samples: a low-rank model in time extrapolates
+#: poorly at trial ends, where most real gaps are, and it is most of the fits' time (41 % of a
+#: real-gap-pattern case's profile).
+INTERIOR = ("tucker_tnn",)
+INTERIOR_SHARE = 0.25
+#: Candidates that fill only some samples (NaN elsewhere), with the parameters that make them so:
+#: ``rigid`` where three segment-mates are seen. The samples such a candidate fills form gap
+#: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
+#: has no weight.
+PARTIAL = {"rigid": {"fallback": False}}
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -74,6 +85,17 @@ FAST = 3.0
 #: A kind's held-out errors count as much as their number of held-out gaps against this many
 #: gaps of its parent (all gaps at a trial end / inside, then all gaps): see :func:`kind_weights`.
 PRIOR_GAPS = 10.0
+
+
+def interior_share(Omega: Tensor) -> float:
+    """Share of the missing samples (a sample: any coordinate of a marker in a frame) that lie in
+    gaps longer than ``LENGTH_EDGES[0]`` frames touching neither trial end."""
+    missing = ~Omega.reshape(Omega.shape[0], Omega.shape[1], -1).all(dim=2)
+    n = int(missing.sum())
+    if n == 0:
+        return 0.0
+    _, L, edge = run_geometry(missing)
+    return float((missing & ~edge & (L > LENGTH_EDGES[0])).sum()) / n
 
 
 def run_bounds(missing: Tensor) -> tuple[Tensor, Tensor]:
@@ -111,8 +133,11 @@ def gap_kind(L: Tensor, edge: Tensor, fast: Tensor) -> Tensor:
 
 
 def kind_name(k: int) -> str:
+    n_base = 4 * (len(LENGTH_EDGES) + 1)
+    partial, k = divmod(k, n_base)
     length = (LENGTH_EDGES + ("inf",))[k // 4]
-    return f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
+    return (f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
+            f"{',segment' if partial else ''}")
 
 
 def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
@@ -134,9 +159,11 @@ def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
 
 
 def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, combine: str,
-                 keep_ratio: float, prior: float = PRIOR_GAPS) -> Tensor:
+                 keep_ratio: float, prior: float = PRIOR_GAPS,
+                 allowed: Tensor | None = None) -> Tensor:
     """Candidate weights per kind, (n_kinds, C), from held-out squared errors ``err2`` (C, N) of
-    samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,).
+    samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,); a candidate
+    takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere).
 
     A kind's mean squared errors are shrunk towards those of all gaps of its trial-end status,
     and those towards all gaps, each with the weight of ``prior`` gaps against the kind's own
@@ -145,10 +172,12 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
     a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method)."""
     def mse(sel: Tensor, parent: Tensor) -> Tensor:
         n = int(torch.unique(gap_ids[sel]).numel()) if bool(sel.any()) else 0
-        own = err2[:, sel].mean(dim=1) if n else parent
+        own = err2[:, sel].nanmean(dim=1) if n else parent     # NaN: a partial candidate
+                                                                # that fills none of them
         return (n * own + prior * parent) / (n + prior)
 
-    def weights(m: Tensor) -> Tensor:
+    def weights(m: Tensor, ok: Tensor) -> Tensor:
+        m = torch.where(torch.isnan(m) | ~ok, torch.inf, m)
         if combine == "select":
             w = torch.zeros_like(m)
             w[int(m.argmin())] = 1.0
@@ -156,11 +185,13 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
         w = torch.where(m <= keep_ratio * m.min(), 1.0 / m.clamp(min=1e-300), 0.0)
         return w / w.sum()
 
-    every = err2.mean(dim=1)
+    every = err2.nanmean(dim=1)
     by_edge = [mse(kinds % 2 == e, every) for e in (0, 1)]
     W = torch.empty(n_kinds, err2.shape[0], dtype=err2.dtype, device=err2.device)
+    if allowed is None:
+        allowed = torch.ones(W.shape, dtype=torch.bool, device=W.device)
     for k in range(n_kinds):
-        W[k] = weights(mse(kinds == k, by_edge[k % 2]))
+        W[k] = weights(mse(kinds == k, by_edge[k % 2]), allowed[k])
     return W
 
 
@@ -257,8 +288,10 @@ class Auto(Solver):
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
             return list(self.candidates)
-        known = set(available()) - ({"rigid"} if "post" in self.fit_data_ else set())
-        return [name for name in DEFAULT_CANDIDATES if name in known]
+        names = [name for name in DEFAULT_CANDIDATES if name in available()]
+        if hasattr(self, "Omega_") and interior_share(self.Omega_) < INTERIOR_SHARE:
+            names = [name for name in names if name not in INTERIOR]
+        return names
 
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
@@ -283,21 +316,30 @@ class Auto(Solver):
         d, L, edge = run_geometry(fit_missing)
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         motion = gap_motion(fit_missing, Xt)
-        kinds = gap_kind(L, edge, motion > FAST)
-        n_kinds = 4 * (len(LENGTH_EDGES) + 1)
-        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N) per coordinate
+        base = gap_kind(L, edge, motion > FAST)
+        n_base = 4 * (len(LENGTH_EDGES) + 1)
+        n_kinds = 2 * n_base                        # x whether a partial candidate fills it
+        kinds = base + n_base * self._partial(names, fills)
+        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
+        allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
+        allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
         if int(decide.sum()) == 0:                                  # nothing to choose on
-            W = torch.full((n_kinds, len(names)), 1.0 / len(names), dtype=fills.dtype,
-                           device=fills.device)
+            W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         else:
             W = kind_weights(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide],
-                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio)
+                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio,
+                             allowed=allowed)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
             fills, real_donor = self._refit(names, fills, w, ~seen)
             donor = torch.where(V, donor, real_donor)
-        mean = (w[..., None] * fills).sum(dim=0)
+            kinds = torch.where(V, kinds, base + n_base * self._partial(names, fills))
+            w = W[kinds].permute(2, 0, 1)
+        w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
+        w = w / w.sum(dim=0, keepdim=True).clamp(min=1e-300)
+        mean = (w[..., None] * torch.nan_to_num(fills)).sum(dim=0)
+        fills = torch.where(torch.isfinite(fills), fills, mean)     # no say where it has none
         spread2 = self._spread2(fills, mean, err2)
         share = fit_missing.to(fills.dtype).mean(dim=1, keepdim=True).expand_as(spread2)
         lin = ops.interp_linear(Xt.reshape(Xt.shape[0], -1),                # V hidden too
@@ -308,16 +350,27 @@ class Auto(Solver):
         both = ~fit_missing[1:] & ~fit_missing[:-1]
         speed2 = (torch.where(both, step, 0.0).sum(dim=0) / both.sum(dim=0).clamp(min=1)
                   ).expand_as(spread2)
-        self.scores_ = {n: float(e.mean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
+        self.scores_ = {n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
         self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
                          for k in range(n_kinds)}
-        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion, donor),
+        segment = kinds >= n_base                   # a partial (segment) candidate fills it
+        self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion,
+                                donor | segment),
                       ((mean - Xt) ** 2).mean(dim=2))
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)
         return {"delta": 0.0, "candidates": float(len(names))}
 
     # -- pieces ----------------------------------------------------------------------------
+    @staticmethod
+    def _partial(names: list[str], fills: Tensor) -> Tensor:
+        """(T, J) samples a partial candidate (see ``PARTIAL``) fills, as 0/1."""
+        got = torch.zeros(fills.shape[1:3], dtype=torch.long, device=fills.device)
+        for c, name in enumerate(names):
+            if name in PARTIAL:
+                got = got | torch.isfinite(fills[c]).all(dim=-1).long()
+        return got
+
     def _holdout(self, seen: Tensor) -> Tensor:
         """Held-out (T, J) samples: shifted gap pattern plus mirrored trial-end gaps."""
         Omega3 = seen[..., None]
@@ -332,14 +385,18 @@ class Auto(Solver):
         """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3)."""
         T, J = fit_missing.shape
         X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
-        params = {"seed": self.seed, **(self.candidate_params or {}).get(name, {})}
+        params = {"seed": self.seed, **PARTIAL.get(name, {}),
+                  **(self.candidate_params or {}).get(name, {})}
         solver = get_solver(name, **params)
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
                 if k in solver.fit_data}                  # training data in the fit's units
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)
-        if not bool(torch.isfinite(out).all()):
+        done = torch.isfinite(out).all(dim=-1)
+        if name in PARTIAL and bool(done[fit_missing].any()):
+            return out.to(self.M_.dtype)                    # NaN where it does not fill
+        if not bool(done.all()):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
 
@@ -393,7 +450,9 @@ class Auto(Solver):
                 done.remove(c)
             else:
                 fills[c] = torch.where(gaps[..., None], out, fills[c])
-        refits, donor = self._constrain(fills[done], gaps)
+        Xt = self.M_.reshape(fills.shape[1:])
+        seen = torch.where(gaps[..., None], fills[done], Xt)   # held-out samples as observed
+        refits, donor = self._constrain(seen, gaps)
         fills[done] = torch.where(gaps[..., None], refits, fills[done])
         return fills, donor
 
@@ -412,7 +471,7 @@ class Auto(Solver):
         """(T, J) disagreement of all candidates with the combined fill, each weighted by its
         inverse held-out MSE (so a poor candidate counts little)."""
         if err2.numel():
-            v = 1.0 / err2.mean(dim=1).clamp(min=1e-12)
+            v = 1.0 / torch.nan_to_num(err2.nanmean(dim=1), nan=torch.inf).clamp(min=1e-12)
         else:
             v = torch.ones(fills.shape[0], dtype=fills.dtype, device=fills.device)
         v = (v / v.sum())[:, None, None, None]

@@ -12,6 +12,7 @@ import math
 import operator
 import re
 import textwrap
+import threading
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -135,6 +136,50 @@ def _deprecated(owner: str, old: str, new: str) -> None:
                   f"use {new!r}", DeprecationWarning, stacklevel=4)
 
 
+_PLAIN = (int, float, bool, str, type(None))
+
+
+def _is_plain(value: Any) -> bool:
+    """Whether ``value`` is a plain value ``torch.load(weights_only=True)`` reads back."""
+    if isinstance(value, _PLAIN):
+        return True
+    if isinstance(value, (list, tuple)):
+        return all(_is_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, (str, int)) and _is_plain(v) for k, v in value.items())
+    return False
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):                  # torch.Size and named tuples as plain tuples
+        return tuple(_plain(v) for v in value)
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The dtype a solver computes in for data of ``dtype``: float32 and float64 as they are,
+    float16 and bfloat16 in float32 (their 3-4 significant digits cannot carry an iterative fit),
+    anything else (integers, bool) in float64."""
+    if dtype in (torch.float32, torch.float64):
+        return dtype
+    if dtype in (torch.float16, torch.bfloat16):
+        return torch.float32
+    return torch.float64
+
+
+def _as_dtype(value: Any, dtype: torch.dtype) -> Any:
+    """Fit data (``training``: a tensor or a list of them) in the compute dtype of a half fit."""
+    if isinstance(value, Tensor) and value.dtype in (torch.float16, torch.bfloat16):
+        return value.to(dtype)
+    if isinstance(value, (list, tuple)):
+        return type(value)(_as_dtype(v, dtype) for v in value)
+    return value
+
+
 _REGISTRY: dict[str, type["Solver"]] = {}
 
 
@@ -171,6 +216,25 @@ class Solver(nn.Module):
     translation- and unit-invariant. ``M_`` holds the normalized data with zeros where missing,
     ``Omega_`` the observed set (bool, full shape). Missing entries are zeroed before anything else,
     so a solver never sees values the caller passed at unobserved positions.
+
+    As a module: every fitted tensor (an attribute ending in ``_``) is a buffer, so ``.to(device
+    or dtype)`` moves the whole fit and ``forward()`` then runs in the new dtype; fitted
+    factorizations are submodules. ``state_dict()`` holds the buffers and, as extra state, the
+    fitted plain values (``n_iter_``, ``history_``, chosen ranks); it loads into a fresh solver of
+    the same class and hyperparameters (``load_state_dict``), after which ``transform`` gives the
+    same fill. Loading needs no pickle: ``torch.load(..., weights_only=True)`` reads it.
+
+    Dtypes: float16 and bfloat16 data are computed in float32 and the fill returned in the caller's
+    dtype; integer data in float64.
+
+    Batches: ``fit`` takes ``(B, T, J, D)`` with a mask ``(B, T, J)`` (or ``(B, T, J, D)``) and
+    fits each sequence in turn (one fitted solver per sequence in ``members_``; no method solves
+    a batch jointly); ``transform`` and ``forward`` return the batch.
+
+    Threads: ``fit``, ``transform`` and ``fit_transform`` of one solver hold its lock, so calls from
+    two threads run one after the other and ``fit_transform`` returns its own fit; a ``fit`` in
+    one thread and a later ``transform`` in another see whichever fit ran last. Use one solver
+    per thread (solvers are cheap to create) to fill in parallel.
     """
 
     name: ClassVar[str] = ""
@@ -215,6 +279,80 @@ class Solver(nn.Module):
         self.history_: list[dict[str, float]] = []
         self.n_iter_ = 0
         self.converged_ = False
+        self._lock = threading.RLock()
+
+    # -- a module whose fitted state is buffers ------------------------------------------------
+    def __setattr__(self, name: str, value: Any) -> None:
+        """A tensor assigned to a fitted attribute (name ending in ``_``) becomes a buffer."""
+        if (isinstance(value, Tensor) and not isinstance(value, nn.Parameter)
+                and name.endswith("_") and not name.startswith("_")
+                and "_buffers" in self.__dict__ and name not in self._buffers
+                and name not in self._parameters):
+            self.__dict__.pop(name, None)
+            self.register_buffer(name, value)
+            return
+        super().__setattr__(name, value)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__.copy()
+        state = dict(state)
+        state.pop("_lock", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        super().__setstate__(state)
+        self._lock = threading.RLock()
+
+    def _reset_fit(self) -> None:
+        """Drop the fitted buffers and submodules of an earlier fit."""
+        for store in (self._buffers, self._modules):
+            for key in [k for k in store if k.endswith("_")]:
+                del store[key]
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """The fitted plain values (ints, floats, strings, bools and containers of them) and the
+        classes of fitted submodules, for ``state_dict``."""
+        values = {k: _plain(v) for k, v in vars(self).items()
+                  if k.endswith("_") and not k.startswith("_") and _is_plain(v)}
+        modules = {k: type(m).__name__ for k, m in self._modules.items() if k.endswith("_")}
+        return {"values": values, "modules": modules}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        for key, value in state.get("values", {}).items():
+            setattr(self, key, value)
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys,
+                              unexpected_keys, error_msgs) -> None:
+        """A fresh solver takes a fitted one's state: its buffers and submodules are made from
+        the keys (shape, dtype and device of the saved tensors) before they are copied in."""
+        extra = state_dict.get(prefix + "_extra_state", {})
+        for cls_key, cls_name in (extra.get("modules", {}) if isinstance(extra, dict) else {}).items():
+            if cls_key not in self._modules:
+                made = self._fresh_module(cls_name, prefix + cls_key + ".", state_dict)
+                if made is not None:
+                    self._modules[cls_key] = made
+        for key, value in state_dict.items():
+            if not key.startswith(prefix):
+                continue
+            name = key[len(prefix):]
+            if ("." not in name and name.endswith("_") and not name.startswith("_")
+                    and name not in self._buffers and name not in self._parameters
+                    and isinstance(value, Tensor)):
+                self.__dict__.pop(name, None)
+                self.register_buffer(name, torch.empty_like(value))
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys,
+                                      unexpected_keys, error_msgs)
+
+    def _fresh_module(self, cls_name: str, prefix: str, state_dict: dict) -> nn.Module | None:
+        """An empty fitted submodule of class ``cls_name`` to load ``prefix...`` keys into."""
+        from .factorized import _Factorized
+        if cls_name == "ModuleList":                       # batch members: same class, same params
+            idx = {int(k[len(prefix):].split(".")[0]) for k in state_dict if k.startswith(prefix)}
+            return nn.ModuleList(type(self)(**self.get_params()) for _ in range(max(idx, default=-1) + 1))
+        for klass in _Factorized.__subclasses__():
+            if klass.__name__ == cls_name:
+                return klass.empty()
+        return None
 
     @classmethod
     def declared_params(cls) -> dict[str, Param]:
@@ -267,12 +405,13 @@ class Solver(nn.Module):
         if unknown:
             raise ValueError(f"{self.name}: fit() got unexpected data {sorted(unknown)}; expected "
                              f"X, mask{''.join(', ' + k for k in self.fit_data)}")
-        self.fit_data_ = {k: v for k, v in data.items() if v is not None}
+        self._reset_fit()
         X = torch.as_tensor(X)
         if X.ndim < 2:
             raise ValueError(f"{self.name}: expected a tensor with time as its first mode, found shape {tuple(X.shape)}")
-        dtype = X.dtype if X.is_floating_point() else torch.float64
+        dtype = compute_dtype(X.dtype)
         X = X.to(dtype)
+        self.fit_data_ = {k: _as_dtype(v, dtype) for k, v in data.items() if v is not None}
         Omega = torch.isfinite(X)
         if mask is not None:
             mask = torch.as_tensor(mask, dtype=torch.bool, device=X.device)
@@ -323,6 +462,13 @@ class Solver(nn.Module):
         ``callback``, if given, receives every iteration's history record (progress display).
         ``data``: the solver's other data (``fit_data``, e.g. ``training=`` for the PCA methods).
         """
+        with self._lock:
+            X = torch.as_tensor(X)
+            if X.ndim == 4:
+                return self._fit_batch(X, mask, callback, **data)
+            return self._fit(X, mask, callback, **data)
+
+    def _fit(self, X: Tensor, mask: Tensor | None, callback, **data: Any) -> "Solver":
         self.initialize(X, mask, **data)
         self.callback_ = callback
         try:
@@ -335,7 +481,24 @@ class Solver(nn.Module):
         self.finalize()
         if not self.converged_:
             warnings.warn(f"{self.name}: stopped at max_iter={self.max_iter} before the stopping "
-                          f"rule was met", NotConvergedWarning, stacklevel=2)
+                          f"rule was met", NotConvergedWarning, stacklevel=3)
+        return self
+
+    def _fit_batch(self, X: Tensor, mask: Tensor | None, callback, **data: Any) -> "Solver":
+        """``(B, T, J, D)``: one fit per sequence (its own mask), kept in ``members_``."""
+        if mask is not None:
+            mask = torch.as_tensor(mask, dtype=torch.bool, device=X.device)
+            if mask.shape[0] != X.shape[0]:
+                raise ValueError(f"{self.name}: a batch of {X.shape[0]} sequences needs a mask per "
+                                 f"sequence, found mask shape {tuple(mask.shape)}")
+        self._reset_fit()
+        members = nn.ModuleList(type(self)(**self.get_params()) for _ in range(X.shape[0]))
+        for b, member in enumerate(members):
+            member._fit(X[b], None if mask is None else mask[b], callback, **data)
+        self.members_ = members
+        self.n_iter_ = sum(m.n_iter_ for m in members)
+        self.converged_ = all(m.converged_ for m in members)
+        self.history_ = [{"sequence": float(b), **h} for b, m in enumerate(members) for h in m.history_]
         return self
 
     def finalize(self) -> None:
@@ -368,14 +531,44 @@ class Solver(nn.Module):
 
     def fit_transform(self, X: Tensor, mask: Tensor | None = None, **data: Any) -> Tensor:
         """Fit, then return ``X`` with its missing entries filled; observed entries are ``X``'s own."""
-        X = torch.as_tensor(X)
-        self.fit(X, mask, **data)
-        return self.transform(X)
+        with self._lock:
+            X = torch.as_tensor(X)
+            self.fit(X, mask, **data)
+            return self.transform(X)
 
     def transform(self, X: Tensor) -> Tensor:
-        X = torch.as_tensor(X)
-        est = self.forward().to(X.dtype if X.is_floating_point() else torch.float64)
-        return torch.where(self.Omega_, X.to(est.dtype), est)
+        """``X`` -- the data the solver was fitted on -- with the samples the fit did not observe
+        (NaN or masked) filled; observed samples are ``X``'s own, bit for bit; the result has
+        ``X``'s shape, dtype (float16 and bfloat16 included; integers become float64) and device.
+
+        The solvers complete the tensor they were fitted on (transductive): other data -- another
+        shape, or other values at the fitted observed samples -- raise a ValueError (fit on them,
+        ``fit_transform``, to fill them)."""
+        with self._lock:
+            X = torch.as_tensor(X)
+            if "members_" in self._modules:
+                if X.ndim != 4 or X.shape[0] != len(self.members_):
+                    raise ValueError(f"{self.name}: fitted on a batch of {len(self.members_)} "
+                                     f"sequences; transform() got shape {tuple(X.shape)}")
+                return torch.stack([m.transform(x) for m, x in zip(self.members_, X)])
+            if "Omega_" not in self._buffers:
+                raise RuntimeError(f"{self.name}: not fitted; call fit(X) first (or fit_transform)")
+            if tuple(X.shape) != tuple(self.Omega_.shape):
+                raise ValueError(f"{self.name}: transform() fills the data the solver was fitted on, "
+                                 f"shape {tuple(self.Omega_.shape)}; found shape {tuple(X.shape)} "
+                                 f"(fit_transform fills other data)")
+            out_dtype = X.dtype if X.is_floating_point() else torch.float64
+            Omega = self.Omega_
+            Xw = X.to(device=Omega.device, dtype=self.M_.dtype)
+            fitted = self.M_ * self.sigma_ + self.mu_
+            tol = 64 * torch.finfo(Xw.dtype).eps * (Xw.abs() + self.mu_.abs() + self.sigma_)
+            same = torch.where(Omega, (Xw - fitted).abs() <= tol, True)
+            if not bool(same.all()):
+                raise ValueError(f"{self.name}: transform() got other data than the solver was "
+                                 f"fitted on ({int((~same).sum())} observed value(s) differ); "
+                                 f"fit_transform fills other data")
+            est = self.forward().to(device=X.device, dtype=out_dtype)
+            return torch.where(Omega.to(X.device), X.to(out_dtype), est)
 
     def carry(self) -> dict[str, Any]:
         """Hyperparameters the next window of the same recording is filled with (what this fit
@@ -383,7 +576,9 @@ class Solver(nn.Module):
         return {}
 
     def forward(self) -> Tensor:
-        """The current full estimate, in the units of the input."""
+        """The current full estimate, in the units of the input (a batch: ``(B, T, J, D)``)."""
+        if "members_" in self._modules:
+            return torch.stack([m.forward() for m in self.members_])
         return self._estimate() * self.sigma_ + self.mu_
 
     # -- to implement --------------------------------------------------------------------------

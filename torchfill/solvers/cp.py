@@ -23,7 +23,7 @@ What differs from the authors' MATLAB demo (each measured on CMU 02_01, see
   residual instead of random vectors, so it begins where the fit is worst;
 * the rank is chosen honestly on observed data: a copy of the gap pattern, shifted in time, is held
   out of the observed entries; the rank grows while the held-out error improves (by at least
-  ``min_gain``, ``patience`` tries); the best rank is restored and refitted with every observed
+  ``min_gain``, ``rank_patience`` tries); the best rank is restored and refitted with every observed
   entry until ``nu`` stalls again (``holdout=None`` gives the paper's rule: grow until
   ``max_rank``, stop when ``||X - X_old|| / ||X_old|| < tol``). Iterating the refit on to
   ``tol = 1e-6`` slowly overfits: on CMU 02_01 (30 markers x 100 frames) the error rose from 6.0
@@ -191,9 +191,10 @@ class _HALSCP(Solver):
                          "the sweeps for the same accuracy on CMU 02_01"),
         **holdout_params("shifted_gaps", 0.2, ", the paper's rule: grow to max_rank (with a "
                                               "hold-out the rank grows while its error improves)"),
-        "patience": Param(5, int, low=0,
-                          doc="rank increases without held-out improvement before the rank "
-                              "search stops (chosen on CMU 02_01/85_02)"),
+        "rank_patience": Param(5, int, low=0,
+                               doc="rank increases without held-out improvement before the rank "
+                                   "search stops (chosen on CMU 02_01/85_02); counted in rank "
+                                   "increases, so not called patience, which is in iterations"),
         "min_gain": Param(0.005, float, low=0.0, high=1.0,
                           doc="a rank counts as better only if it lowers the held-out RMSE by "
                               "this fraction (0.5 %: smaller gains were noise on CMU 02_01)"),
@@ -202,7 +203,7 @@ class _HALSCP(Solver):
                      doc="stop when ||X - X_old|| / ||X_old|| < tol (the paper's 1e-6)"),
     }
 
-    renamed = {"rank_max": "max_rank"}
+    renamed = {"rank_max": "max_rank", "patience": "rank_patience"}
     renamed_attributes = {"cp_": "decomposition_", "rank_chosen_": "chosen_rank_"}
 
     @classmethod
@@ -320,7 +321,7 @@ class _HALSCP(Solver):
             info["holdout_rmse"] = err
             self.val_history_.append((self.rank_, err))
             self.holdout_.offer(err, self._snapshot, self.n_iter_ + 1)
-            if self.holdout_.n_bad > self.patience or self.rank_ >= self.max_rank:
+            if self.holdout_.n_bad > self.rank_patience or self.rank_ >= self.max_rank:
                 self._finish_search()
                 return
         if self.chosen_:

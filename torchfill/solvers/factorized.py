@@ -33,6 +33,28 @@ class _Factorized(nn.Module):
         else:
             self.register_buffer(name, value)
 
+    @classmethod
+    def empty(cls) -> "_Factorized":
+        """A structure with no tensors yet, to ``load_state_dict`` a fitted one into."""
+        obj = cls.__new__(cls)
+        _Factorized.__init__(obj, learn=False)
+        obj.n_modes = 0
+        return obj
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys,
+                              unexpected_keys, error_msgs) -> None:
+        """An :meth:`empty` structure takes its tensors' shapes from the saved state first (as
+        buffers: a loaded fit is for ``forward()``; refit to learn again)."""
+        for key, value in state_dict.items():
+            name = key[len(prefix):]
+            if (key.startswith(prefix) and "." not in name
+                    and name not in self._buffers and name not in self._parameters):
+                self._put(name, torch.empty_like(value))
+        self.n_modes = max(self.n_modes, sum(1 for k in self._parameters if k.startswith("factor_"))
+                           + sum(1 for k in self._buffers if k.startswith("factor_")))
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys,
+                                      unexpected_keys, error_msgs)
+
     @property
     def factors(self) -> list[torch.Tensor]:
         return [getattr(self, f"factor_{n}") for n in range(self.n_modes)]
@@ -73,6 +95,12 @@ class TuckerTensor(_Factorized):
     def forward(self) -> torch.Tensor:
         return ops.tucker_to_tensor(self.core, self.factors)
 
+    def to_tensorly(self):
+        """TensorLy's ``TuckerTensor`` of the same core and factors (detached, sharing memory):
+        ``tl.tucker_to_tensor`` of it is :meth:`forward`'s tensor."""
+        from tensorly.tucker_tensor import TuckerTensor as TLTucker
+        return TLTucker((self.core.detach(), [A.detach() for A in self.factors]))
+
 
 class CPTensor(_Factorized):
     """``sum_r w_r a_r(1) o a_r(2) o a_r(3)``: weights (R,), factors ``A(n)`` (I_n x R)."""
@@ -93,11 +121,20 @@ class CPTensor(_Factorized):
         import tensorly as tl
         from tensorly.decomposition import parafac
 
+        if not bool((X != 0).any()):         # nothing to fit (constant data): zero weights
+            gen = torch.Generator(device="cpu").manual_seed(seed)
+            A = [torch.randn(I, rank, generator=gen, dtype=X.dtype).to(X.device) for I in X.shape]
+            A = [a / torch.linalg.vector_norm(a, dim=0) for a in A]
+            return cls(X.new_zeros(rank), A, learn=learn)
         broken = any(X.numel() // I < rank <= I for I in X.shape)
         with tl.backend_context("pytorch"), warnings.catch_warnings():
             warnings.simplefilter("ignore")   # SVD init pads R > I_n with random columns
-            w, A = parafac(X, rank=rank, init="random" if broken else "svd", n_iter_max=n_iter,
-                           tol=1e-8, normalize_factors=True, random_state=seed)
+            try:
+                w, A = parafac(X, rank=rank, init="random" if broken else "svd", n_iter_max=n_iter,
+                               tol=1e-8, normalize_factors=True, random_state=seed)
+            except torch.linalg.LinAlgError:  # a rank-deficient X (ALS normal equations singular)
+                w, A = parafac(X, rank=rank, init="random", n_iter_max=n_iter, tol=1e-8,
+                               normalize_factors=True, random_state=seed)
         return cls(w.detach().clone(), [a.detach().clone() for a in A], learn=learn)
 
     @property
@@ -106,3 +143,9 @@ class CPTensor(_Factorized):
 
     def forward(self) -> torch.Tensor:
         return ops.cp_to_tensor(self.weights, self.factors)
+
+    def to_tensorly(self):
+        """TensorLy's ``CPTensor`` of the same weights and factors (detached, sharing memory):
+        ``tl.cp_to_tensor`` of it is :meth:`forward`'s tensor."""
+        from tensorly.cp_tensor import CPTensor as TLCP
+        return TLCP((self.weights.detach(), [A.detach() for A in self.factors]))

@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import warnings
 from collections import OrderedDict
 from typing import Any
 
@@ -190,7 +191,11 @@ def template_operator(n: int, s: Tensor, S: Tensor, observed: Tensor, *, varianc
     C0 = d[:, None] * C * d[None, :]                               # covariance of A(0) = A L D
     lam0, U0 = _eigh_desc(C0)
     r0 = min(U.shape[1], int((lam0 > rtol * lam0[0].clamp(min=1e-300)).sum()))
-    lam0, U0 = lam0[:max(r0, 1)], U0[:, :max(r0, 1)]              # gapped eigenspace U(0)
+    if r0 == 0 or not bool(lam0[0] > 0):
+        # the observed coordinates vary not at all once centred (one observed marker, body-
+        # centred): they say nothing beyond the centroid, so the estimate is the mean template
+        return L, m, torch.zeros_like(C)
+    lam0, U0 = lam0[:r0], U0[:, :r0]                               # gapped eigenspace U(0)
     # Eq. 2-3, normal equations (derived; the printed Eq. 3 is garbled in our copy):
     #   (sum P_i'P_i) T = sum P_i' A_i U,  P_i = A_i(0) U(0)  =>  T = Lambda0^-1 U(0)' D C U
     T = (U0.T @ (d[:, None] * C) @ U) / lam0[:, None]
@@ -309,10 +314,10 @@ class _PCA(Solver):
         "training": Param(None, (list, tuple), allow_none=True,
                           doc="deprecated (one release): pass the training data to "
                               "fit(X, mask, training=...) or torchfill.fill(..., training=...)"),
-        "variance": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
-                          doc="rank r = fewest eigenvectors explaining this share of the training "
-                              "variance (0.9999: chosen among 0.99-0.99999 on the development "
-                              "recordings cmu_85_02 and HDM_bd_01-02, experiments/pca_dev.yaml)"),
+        "energy": Param(0.9999, float, low=0.0, high=1.0, low_open=True,
+                        doc="rank r = fewest eigenvectors explaining this share of the training "
+                            "variance, i.e. of the energy (0.9999: chosen among 0.99-0.99999 on the development "
+                            "recordings cmu_85_02 and HDM_bd_01-02, experiments/pca_dev.yaml)"),
         "rank": Param(None, int, low=1, allow_none=True, doc="fixed rank r instead of the rule"),
         "self_share": Param(0.5, float, low=0.0, high=1.0,
                             doc="with a training set: weight of the recording's own complete frames "
@@ -322,6 +327,8 @@ class _PCA(Solver):
                                        "prior of the coefficients (False: the paper's plain "
                                        "least squares)"),
     }
+    #: one name per idea: the share of the spectrum kept is ``energy`` in every solver
+    renamed = {"variance": "energy"}
 
     def _self_data(self) -> Tensor:
         """The recording itself, normalized, NaN where missing (for ``training=None``)."""
@@ -386,10 +393,10 @@ class _PCA(Solver):
         stride = max(1, length // 20)
         # Column centring removes mu and the basis is scale-free, so raw training units serve.
         def make():
-            return temporal_basis(sources, length, stride, self.variance, self.rank)
+            return temporal_basis(sources, length, stride, self.energy, self.rank)
 
         V = make() if own else _cached(("temporal", self.training_key_, length, stride,
-                                        self.variance, self.rank), make)
+                                        self.energy, self.rank), make)
         self.bases_[length] = V
         return V
 
@@ -440,6 +447,17 @@ class _PCA(Solver):
 
     def _estimate(self) -> Tensor:
         return self.X_
+
+    def _finite_or_start(self, out: Tensor) -> Tensor:
+        """``out`` (T x DJ) with any sample the model could not estimate (too few markers or
+        frames for its statistics) taken from the interpolation start, with a warning."""
+        bad = ~torch.isfinite(out) & ~self.Omega_.reshape(out.shape)
+        if not bool(bad.any()):
+            return out
+        warnings.warn(f"{self.name}: {int(bad.sum())} missing coordinate(s) could not be "
+                      f"estimated by the PCA model ({self.M_.shape[1]} markers); filled by "
+                      f"linear interpolation instead", UserWarning, stacklevel=4)
+        return torch.where(bad, self.interp_start().reshape(out.shape), out)
 
 
 @register
@@ -500,7 +518,7 @@ class PCATrain(_PCA):
             out = Y
             if bool((missing.any(dim=1) & ~full).any()):
                 n, s, S = self._spatial_stats()
-                out = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
+                out = spatial_fill(Y, missing, n, s, S, variance=self.energy, rank=self.rank,
                                    centre=self.centre)
         else:
             runs = [(a, b, j) for j, a, b in ops.runs(missing)]
@@ -509,6 +527,7 @@ class PCATrain(_PCA):
                 Y, runs, lambda j: slice(D * j, D * j + D), lambda j: ~missing[:, j],
                 self.window, None)
         out = torch.where(full[:, None], self.X_.reshape(T, -1), out)  # blackouts: linear
+        out = self._finite_or_start(out)
         self.X_ = torch.where(self.Omega_.reshape(T, -1), Y, out).reshape(self.M_.shape)
         return {"delta": 0.0}
 
@@ -549,9 +568,9 @@ class PCABlackout(_PCA):
 
     name = "pca_blackout"
     params = {
-        "variance": Param(0.99999, float, low=0.0, high=1.0, low_open=True,
-                          doc="rank rule (as pca_train); 0.99999: best of 0.99-0.99999 with the "
-                              "prior on the development recordings (experiments/pca_dev.yaml)"),
+        "energy": Param(0.99999, float, low=0.0, high=1.0, low_open=True,
+                        doc="rank rule (as pca_train); 0.99999: best of 0.99-0.99999 with the "
+                            "prior on the development recordings (experiments/pca_dev.yaml)"),
         "centre": Param(True, bool, doc="body-centred frames for the partial gaps (see pca_train)"),
         "window": Param(200, int, low=4, doc="window around a blackout (the paper's 200-frame segments)"),
         "edge_scale": Param(1.0, float, low=0.0, low_open=True, allow_none=True,
@@ -566,11 +585,12 @@ class PCABlackout(_PCA):
         full = missing.all(dim=1)
         if bool((missing.any(dim=1) & ~full).any()):
             n, s, S = self._spatial_stats()
-            Y = spatial_fill(Y, missing, n, s, S, variance=self.variance, rank=self.rank,
+            Y = spatial_fill(Y, missing, n, s, S, variance=self.energy, rank=self.rank,
                              centre=self.centre)
         runs = [(a, b, None) for _, a, b in ops.runs(full[:, None])]
         out = self._temporal_fill_runs(Y, runs, lambda _: slice(None), lambda _: ~full,
                                        self.window, self.edge_scale)
         observed = self.Omega_.reshape(T, -1)
+        out = self._finite_or_start(out)
         self.X_ = torch.where(observed, self.M_.reshape(T, -1), out).reshape(self.M_.shape)
         return {"delta": 0.0}

@@ -203,9 +203,10 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
 
 def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
     """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
-    ``HOLDOUT_LAGS`` frames (those with at least three pairs): the fill's error by reach."""
-    lags, errs = [], []
-    for lag in HOLDOUT_LAGS:
+    ``HOLDOUT_LAGS`` frames (those with at least three pairs): the fill's error by reach. All
+    lags go through one batched Kabsch."""
+    srcs, dsts, tags = [], [], []
+    for n, lag in enumerate(HOLDOUT_LAGS):
         later = np.searchsorted(refs, refs + lag)
         ok = later < refs.size
         if ok.sum() < 3:
@@ -213,26 +214,26 @@ def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
         src, dst = refs[ok], refs[later[ok]]
         pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
                          .round().astype(int))
-        src, dst = src[pick], dst[pick]
-        est, good = _carry(X, seen, j, M, w, src, dst)
-        if good.sum() < 3:
-            continue
-        e = est[good] - X[dst[good], j]
-        lags.append(np.median(dst[good] - src[good]))
-        errs.append(np.sqrt((e ** 2).sum(axis=1).mean()))
+        srcs.append(src[pick])
+        dsts.append(dst[pick])
+        tags.append(np.full(pick.size, n))
+    if not srcs:
+        return np.zeros(0), np.zeros(0)
+    src, dst, tag = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(tags)
+    est, good = _carry(X, seen, j, M, w, src, dst)
+    sq = np.where(good, np.nansum((est - X[dst, j]) ** 2, axis=1), 0.0)
+    lags, errs = [], []
+    for n in range(len(srcs)):
+        g = good & (tag == n)
+        if g.sum() >= 3:
+            lags.append(np.median(dst[g] - src[g]))
+            errs.append(np.sqrt(sq[g].mean()))
     return np.asarray(lags, float), np.maximum.accumulate(np.asarray(errs, float))
 
 
-def _segment_estimate(X, seen, j, M, w, min_mates=3):
-    """Estimate and error (3-D RMS) of marker ``j`` from mates ``M`` at its missing frames."""
-    T = X.shape[0]
-    nvis = (seen[:, M] * (w > 0)).sum(axis=1)
-    todo = np.flatnonzero(~seen[:, j] & (nvis >= min_mates))
-    est = np.full((T, 3), np.nan)
-    err = np.full(T, np.nan)
-    refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
-    if todo.size == 0 or refs.size == 0:
-        return est, err
+def _estimate_at(X, seen, j, M, w, todo, refs, min_mates):
+    """Blend of ``j`` carried from the nearest reference before and after each ``todo`` frame;
+    returns the estimates, which exist, and their reach (frames to the nearer used edge)."""
     pos = np.searchsorted(refs, todo)
     has_b, has_a = pos > 0, pos < refs.size
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
@@ -244,12 +245,47 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3):
     span = np.maximum(a - b, 1)
     s = np.where(okb & oka, (todo - b) / span, np.where(oka, 1.0, 0.0))[:, None]
     e = (1 - s) * np.where(okb[:, None], eb, 0.0) + s * np.where(oka[:, None], ea, 0.0)
-    good = okb | oka
     reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
+    return e, okb | oka, reach
+
+
+def _segment_estimate(X, seen, j, M, w, min_mates=3):
+    """Estimate and error (3-D RMS) of marker ``j`` from mates ``M`` at its missing frames.
+
+    References are the frames with ``j`` and ``min_mates`` mates observed; a frame whose nearest
+    references share fewer than ``min_mates`` observed mates with it is carried instead from the
+    nearest frames where all of its observed mates (then all but the least rigid, ...) were seen
+    with ``j``."""
+    T = X.shape[0]
+    use = seen[:, M] & (w > 0)
+    nvis = use.sum(axis=1)
+    todo = np.flatnonzero(~seen[:, j] & (nvis >= min_mates))
+    est = np.full((T, 3), np.nan)
+    err = np.full(T, np.nan)
+    refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
+    if todo.size == 0 or refs.size == 0:
+        return est, err
+    e, good, reach = _estimate_at(X, seen, j, M, w, todo, refs, min_mates)
+    if not good.all():                                   # mates seen there, not at the edges
+        left = np.flatnonzero(~good)
+        codes = use[todo[left]] @ (1 << np.arange(M.size, dtype=np.int64))
+        rank = np.argsort(-w, kind="stable")             # most rigid mates first
+        for code in np.unique(codes):
+            sel = left[codes == code]
+            S = [i for i in rank if code >> i & 1]
+            while len(S) >= min_mates:
+                r = np.flatnonzero(seen[:, j] & seen[:, M[S]].all(axis=1))
+                if r.size:
+                    w_s = np.zeros_like(w)
+                    w_s[S] = w[S]
+                    e2, g2, r2 = _estimate_at(X, seen, j, M, w_s, todo[sel], r, min_mates)
+                    e[sel], good[sel], reach[sel] = e2, g2, r2
+                    break
+                S = S[:-1]
     lags, errs = _holdout_curve(X, seen, j, M, w, refs)
     if lags.size:
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
-    else:                                 # too few observed frames to measure: a coarse bound
+    else:                                 # too few observed frames to measure
         r = np.full(todo.size, np.nan)
     est[todo[good]] = e[good]
     err[todo[good]] = r[good]
@@ -340,7 +376,8 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
             rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
             mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
                             np.inf)
-            better = np.isfinite(e).all(axis=1) & (rank < mine)
+            fin = np.isfinite(e).all(axis=1)
+            better = fin & (rank < mine)
             est[better, j] = e[better]
             std[better, j] = per_coord[better]
             seg_of[better, j] = si
@@ -404,6 +441,8 @@ class Rigid(Solver):
         "segments": Param(None, dict, allow_none=True,
                           doc="segment name -> marker indices (None: found from the data)"),
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
+        "fallback": Param(True, bool, doc="PCHIP where fewer mates are seen (False: leave NaN "
+                                          "there, as auto's candidate does)"),
     }
 
     def _initialize(self) -> None:
@@ -417,14 +456,18 @@ class Rigid(Solver):
         est, std, self.segment_of_ = segment_fill(X.cpu().numpy(), seen.cpu().numpy(), segments,
                                                   min_mates=self.min_partners)
         done = torch.from_numpy(np.isfinite(est).all(axis=2)).to(seen.device)
-        self.rigid_done_, self.std_ = done, torch.from_numpy(std).to(self.M_)
+        self.rigid_done_ = done
+        self.std_ = torch.from_numpy(std).to(self.M_) * self.sigma_        # in the data's units
         R = torch.from_numpy(est).to(self.M_)
         T = X.shape[0]
-        base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
+        if self.fallback:
+            base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
+        else:
+            base = torch.full_like(self.M_, float("nan"))
         self.X_ = torch.where(done[..., None], R, base.reshape(self.M_.shape))
         missing = int((~seen).sum())
         fallback = missing - int(done.sum())
-        if fallback:
+        if fallback and self.fallback:
             warnings.warn(f"rigid: {fallback} of {missing} missing samples have fewer than "
                           f"{self.min_partners} segment-mates observed: filled by PCHIP",
                           UserWarning, stacklevel=2)

@@ -204,7 +204,7 @@ class Tucker(Solver):
     (unit-variance) data. Compared on the mean RMSE over three HDM05 recordings
     (hdm05_mm_01-02_03_120, hdm05_bd_05-01_01_120, HDM_bd_01-02_01_120) x multi_gap settings
     (gap, max gaps) = (100, 2), (100, 10), (200, 5), seed 0: ``holdout`` (on: 1.04 mm vs None,
-    last iterate 1.05 mm for tucker; 1.95 vs 2.24 mm for tucker_tnn at lam=0.01) and ``lam``
+    last iterate 1.05 mm for tucker; 1.95 vs 2.24 mm for tucker_tnn at lam_tnn=0.01) and ``lam_tnn``
     (0.1 / 0.01 / 0.001: 6.32 / 1.95 / 1.02 mm); the start (centroid-relative interpolation) on
     cmu_02_01, where plain interpolation left an edge gap 446 mm off (now 12 mm). ``rho_a``
     follows the paper's code; ``rho_g``, ``rho_x``, ``eps``, ``rank``, ``delta_rank``,
@@ -446,7 +446,7 @@ class TuckerTNN(Tucker):
     name = "tucker_tnn"
     params = {
         "rho_x": Param(0.1, float, low=0.0, doc="proximal weight of X_(1) (Eq. 24)"),
-        "lam": Param(0.001, float, low=0.0,
+        "lam_tnn": Param(0.001, float, low=0.0,
                      doc="nuclear-norm weight lambda, times sqrt(T) on the unit-variance data (Eq. 24)"),
         "x_step": Param("closed_form", str, choices=("closed_form", "apg"),
                         doc="X-step solver: the closed form D_{lam/(1+rho_x)} or the paper's APG"),
@@ -456,10 +456,12 @@ class TuckerTNN(Tucker):
         "svd": Param("gram", str, choices=("gram", "full"),
                      doc="SVT through the eigen-decomposition of the 3J x 3J Gram (fast) or a thin SVD"),
     }
+    #: one name per idea: the temporal nuclear-norm weight is ``lam_tnn`` (as in grad_tucker)
+    renamed = {"lam": "lam_tnn"}
 
     def _recover(self, P: Tensor, X_k: Tensor, G: Tensor, A: list[Tensor]) -> Tensor:
         T = P.shape[0]
-        lam = self.lam * math.sqrt(T)
+        lam = self.lam_tnn * math.sqrt(T)
         if self.x_step == "apg":
             Z = ops.tucker_to_tensor(G, A).reshape(T, -1)                     # temporal unfolding
             X1 = prox_tnn_apg(Z, X_k.reshape(T, -1), self.rho_x, lam, step=self.apg_step,
