@@ -56,7 +56,6 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = data_dir(REPO)
 DOC = REPO / "docs" / "ik.md"
 RESULTS = REPO / "experiments" / "results" / "ik"
-START, END = "<!-- bench_ik:start -->", "<!-- bench_ik:end -->"
 
 #: Frames of the Hamner running trial used (10 s at 60 Hz in the file; IK costs 20-40 ms a frame there).
 HAMNER_FRAMES = 240
@@ -439,17 +438,10 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def write_doc(path: Path, text: str) -> None:
-    block = f"{START}\n{text}\n{END}"
-    if path.is_file():
-        page = path.read_text()
-        if START in page and END in page:
-            page = page[:page.index(START)] + block + page[page.index(END) + len(END):]
-        else:
-            page = page.rstrip("\n") + "\n\n" + block + "\n"
-    else:
-        page = "# Fills judged by OpenSim inverse kinematics\n\n" + block + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page)
+    """Put ``text`` between the page's ``bench_ik`` markers (scripts/docblock.py)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from docblock import write_block
+    write_block(path, "bench_ik", text, title="Fills judged by OpenSim inverse kinematics")
 
 
 def _commit() -> str:
