@@ -1,4 +1,4 @@
-"""Speed of the Tits et al. (2018) models and Gløersen PCA (issue 12: each <= 2 s, pma <= 5 s on a
+"""Speed of the Tits et al. (2018) models and Gløersen PCA (each <= 2 s, pma <= 5 s on a
 3 000-frame x 41-marker recording).
 
 HDM05 mm_01-02_03 frames 0-3000 (41 markers), Tucker-paper gaps (20 markers, 100 frames, up to 5

@@ -1,4 +1,4 @@
-"""Speed of the CP paper's baselines ``halrtc``, ``spc``, ``pstnn`` on real recordings (issue 13).
+"""Speed of the CP paper's baselines ``halrtc``, ``spc``, ``pstnn`` on real recordings.
 
 1. CMU 02_01 (343 x 41): 10 markers x 50 frames missing (shared window, seed 0).
 2. CMU 85_12, first 3000 frames x 41 markers: 10 markers x 100 frames missing (seed 0).

@@ -1,6 +1,6 @@
 """2-D keypoint tracks: the default fill against linear interpolation on side views of real recordings.
 
-Issue 17's "Done when": on 2-D side-view projections (torchfill.projection.side_view: orthographic,
+Target: on 2-D side-view projections (torchfill.projection.side_view: orthographic,
 camera horizontal and perpendicular to the main horizontal direction, image axes = that direction and
 up) of CMU and HDM05 recordings from ../shared/data, with 60-frame gaps on 8 keypoints (multi_gap:
 each of 8 random keypoints gets 1-5 gaps of 60 frames, the Tucker paper's protocol), the default

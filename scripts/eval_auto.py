@@ -1,12 +1,12 @@
 """Evaluate ``auto`` against every single method on a suite of gap masks on real recordings.
 
-Cases (the kinds of issue #14, built with torchfill.gaps and the small generators below, seeded):
+Cases (built with torchfill.gaps and the small generators below, seeded):
 HDM05 multi-gap (Tucker paper protocol), CMU shared windows of 10/20/30 of 41 markers (CP paper
 protocol), dense clustered occlusions where every marker has a gap, a shared window on the most
 still stretch, a whole-frame blackout, and gaps at the trial ends. Masks from the MATLAB reference
-suite (``--masks /work/ref/masks``, written by scripts/mask_suite.py of branch i12-ref) are used
+suite (``--masks ref/masks``, written by scripts/mask_suite.py) are used
 instead when given, with the MATLAB PMA / Gloersen fills of that run (``--ref``, default
-/work/ref/out, ``<case>__pma.npz``) scored beside (columns refreshed on every run, ``--resume``
+ref/out, ``<case>__pma.npz``) scored beside (columns refreshed on every run, ``--resume``
 included, so a later run picks up reference fills that finished since).
 
 Prints per case the RMSE over all entries (Tucker/CP papers' convention, mm) of every method and of
@@ -218,7 +218,7 @@ def main() -> None:
     parser.add_argument("--cases", nargs="*", help="only these case names, in this order")
     parser.add_argument("--combine", default="average", choices=("average", "select"))
     parser.add_argument("--masks", type=Path, help="use the cases of scripts/mask_suite.py in DIR")
-    parser.add_argument("--ref", type=Path, default=Path("/work/ref/out"),
+    parser.add_argument("--ref", type=Path, default=Path("ref/out"),
                         help="MATLAB reference fills <case>__pma.npz etc. (columns when present)")
     parser.add_argument("--methods", nargs="*", default=list(SINGLES), help="single methods")
     parser.add_argument("--no-auto", action="store_true", help="score the single methods only")

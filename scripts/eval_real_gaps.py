@@ -1,4 +1,4 @@
-"""Plausibility of fills on the REAL gaps of every gapped recording in ../shared/data (issue #11).
+"""Plausibility of fills on the REAL gaps of every gapped recording in ../shared/data.
 
 For each file and method: teleports (one-frame steps touching a fill longer than 1.5 x the
 recording's 99.9th-percentile observed step), samples outside the observed volume (+10 % per

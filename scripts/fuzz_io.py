@@ -1,4 +1,4 @@
-"""Fuzz the read -> fill -> write -> read path (issue #18) and check torchfill's promises.
+"""Fuzz the read -> fill -> write -> read path and check torchfill's promises.
 
 A corpus of seed files (real recordings from ``../shared/data`` when present, plus synthetic C3D
 (float and int16), TRC, CSV, NPZ and NPY files) is mutated (byte flips, truncations, insertions,

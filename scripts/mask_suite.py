@@ -1,6 +1,6 @@
-"""The mask suite that `auto` (issue 14) and the PMA reference check (issue 12) are judged on.
+"""The mask suite that `auto` and the PMA reference check are judged on.
 
-Writes, deterministically from seeds, ~19 cases to a folder (default /work/ref/masks): per case
+Writes, deterministically from seeds, ~19 cases to a folder (default ref/masks): per case
 ``<name>.npz`` (``points`` (T, J, 3) with NaN where hidden, ``mask`` (T, J) bool, ``truth``
 (T, J, 3), ``recording``, ``frames`` [start, stop), ``markers`` (indices kept), ``kind``) and
 ``<name>.mat`` for Octave (``data``/``truth`` as T x 3J in the ``x1 y1 z1 x2 ...`` column layout
@@ -13,7 +13,7 @@ observed in the recording (the recordings used are complete). Kinds:
 - ``dense``: clustered occlusions (neighbouring markers together) until every marker has a gap;
 - ``blackout``: whole-frame blackouts (gaps.blackout), every marker missing together.
 
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/mask_suite.py [--out /work/ref/masks]
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/mask_suite.py [--out ref/masks]
 """
 from __future__ import annotations
 
@@ -134,7 +134,7 @@ def build(out: Path) -> list[dict]:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="/work/ref/masks", type=Path)
+    ap.add_argument("--out", default="ref/masks", type=Path)
     build(ap.parse_args(argv).out)
 
 

@@ -1,15 +1,15 @@
-"""Issue 12 reference check: the MATLAB originals (PMA of Tits et al. 2018, Gløersen & Federolf's
+"""Reference check: the MATLAB originals (PMA of Tits et al. 2018, Gløersen & Federolf's
 PredictMissingMarkers) against torchfill's methods, on the same masks (scripts/mask_suite.py).
 
 Needs no Octave: the originals' fills are read from ``ORIGINALS/<case>__<name>.npz`` (``filled``
-(T, J, 3), ``seconds``, ``ok``) as written by the out-of-repo Octave run (/work/ref). torchfill's
+(T, J, 3), ``seconds``, ``ok``) as written by the out-of-repo Octave run (ref/). torchfill's
 methods are run here on each case's ``points``. Per case: RMSE over all entries and over the missing
 entries (mm; unfilled samples are left out of both and counted separately), seconds. Means: over
 the cases every method fills, and over all cases with each method's unfilled samples taken from
 linear interpolation (what a user would fall back to).
 
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/pma_reference.py --masks /work/ref/masks \\
-        --originals /work/ref/out --out experiments/results/pma_reference.md [--csv runs.csv]
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/pma_reference.py --masks ref/masks \\
+        --originals ref/out --out experiments/results/pma_reference.md [--csv runs.csv]
 """
 from __future__ import annotations
 
@@ -135,8 +135,8 @@ def markdown(rows: list[dict]) -> str:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--masks", type=Path, default=Path("/work/ref/masks"))
-    ap.add_argument("--originals", type=Path, default=Path("/work/ref/out"))
+    ap.add_argument("--masks", type=Path, default=Path("ref/masks"))
+    ap.add_argument("--originals", type=Path, default=Path("ref/out"))
     ap.add_argument("--methods", nargs="*", default=None,
                     help=f"torchfill methods (default: those of {OURS} that are registered)")
     ap.add_argument("--csv", type=Path, default=None, help="every row, for later --tables")

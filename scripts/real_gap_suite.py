@@ -223,8 +223,10 @@ def summary(rows: list[dict], methods: list[str]) -> str:
     lines.append("| **mean** | | " + " | ".join(f"**{means[m]:.2f}**" for m in methods) +
                  f" | worst {np.nanmax(ratios):.2f} |")
     lines.append("| median CPU s | | " + " | ".join(f"{secs[m]:.2f}" for m in methods) + " | |")
-    best_single = min(singles, key=lambda m: means[m])
     lines.append("")
+    if not singles:
+        return "\n".join(lines)
+    best_single = min(singles, key=lambda m: means[m])
     lines.append(f"{len(rows)} cases; best single method by mean: {best_single} "
                  f"{means[best_single]:.2f} mm; default {means.get(DEFAULT, np.nan):.2f} mm; "
                  f"default worst ratio to the case's best single {np.nanmax(ratios):.2f}")

@@ -100,7 +100,8 @@ def test_bad_input_is_one_line_and_exit_2(args, needle, gappy_npz, tmp_path, cap
 def test_real_recording_info_and_evaluate(recording, capsys):
     path = recording("cmu_02_01.c3d")
     assert main(["info", str(path)]) == 0
-    assert "frames 343, markers 41" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "frames 343 (numbered 50-392 as in the file), markers 41" in out
     assert main(["evaluate", str(path), "-m", "linear", "--markers", "5", "--gap-length", "40",
                  "--max-gaps", "2", "-q", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)["results"][0]

@@ -171,7 +171,7 @@ def test_methods_lists_the_registry():
 
 # -- accuracy on a real recording ----------------------------------------------------------------
 #: RMSE over the gaps (mm), mean over seeds 0-4 of 10 markers x one 60-frame gap
-#: (``continuous_runs``) on cmu_02_01 (343 frames x 41 markers), measured 2026-11-22:
+#: (``continuous_runs``) on cmu_02_01 (343 frames x 41 markers), measured:
 #: linear 62.05, spline 37.01, pchip 45.02. Bounds are 1.5x those.
 CMU_BOUNDS = {"linear": 1.5 * 62.05, "spline": 1.5 * 37.01, "pchip": 1.5 * 45.02}
 

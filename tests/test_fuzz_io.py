@@ -1,4 +1,4 @@
-"""A small seeded run of ``scripts/fuzz_io.py`` (issue #18): mutated C3D/TRC/CSV/NPZ/NPY files
+"""A small seeded run of ``scripts/fuzz_io.py``: mutated C3D/TRC/CSV/NPZ/NPY files
 through read -> fill -> write -> read must keep every rule (one-line errors, nothing written on
 error, observed samples and everything else kept). The full run (>= 5000 mutants) is in the
 README; this one is the regression guard."""

@@ -1,4 +1,4 @@
-"""Issue #18: the integrity holes and rough edges a new user hit, one regression test per class.
+"""The integrity holes and rough edges a new user hit, one regression test per class.
 
 Each test reproduces the failure on the code before the fix (see the commit messages) and checks
 the rule it broke: observed samples never change in any output, a written file keeps what the

@@ -1,8 +1,12 @@
-"""``torchfill qc``: one row per real gap with a verdict, an HTML report that a browser renders."""
+"""``torchfill qc``: a verdict per gap (ok / check / reject) with its reasons and thresholds in the
+file's units, frame numbers as the file counts them, JSON for pipelines, an HTML report a browser
+renders, and 2-D keypoint fills."""
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
+import warnings
 
 import numpy as np
 import pytest
@@ -12,35 +16,206 @@ from torchfill import qc
 from torchfill.cli import main
 
 
-def test_gap_table_flags_a_teleport_and_an_extrapolated_gap():
-    t = np.arange(300)[:, None, None] / 100.0
-    X = np.concatenate([300 * np.sin(t + np.arange(4)[None, :, None]) + 100 * np.arange(3)] * 1,
-                       axis=1)
+def body(T: int = 300, seed: int = 0) -> np.ndarray:
+    """Six markers of one rigid body (a 200 mm box) turning and moving, in mm: (T, 6, 3)."""
+    rng = np.random.default_rng(seed)
+    local = rng.uniform(-100, 100, size=(6, 3))
+    t = np.arange(T) / 100.0
+    a = 0.8 * np.sin(2 * np.pi * 0.5 * t)
+    R = np.zeros((T, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = (np.cos(a), -np.sin(a), np.sin(a),
+                                                                  np.cos(a), 1.0)
+    centre = np.stack([400 * np.sin(2 * np.pi * 0.3 * t), 200 * t, 900 + 0 * t], axis=1)
+    return np.einsum("tij,kj->tki", R, local) + centre[:, None]
+
+
+def rows_by_start(rows):
+    return {(r["marker"], r["start"]): r for r in rows}
+
+
+def test_each_test_gives_its_verdict_and_reason_with_the_threshold():
+    X = body()
     gappy = X.copy()
-    gappy[100:140, 1] = np.nan           # interior gap, filled with a 600 mm jump
-    gappy[280:, 2] = np.nan              # extrapolated gap, filled exactly
+    gappy[100:140, 1] = np.nan            # filled 600 mm off: a step above the cap
+    gappy[200:220, 2] = np.nan            # filled exactly
+    gappy[50:60, 3] = np.nan              # filled off its rigid partners by 40 mm
+    gappy[270:, 4] = np.nan               # trial end, filled exactly
+    gappy[:40, 5] = np.nan                # trial start, left unfilled
     filled = X.copy()
     filled[120:140, 1] += 600.0
-    rows = {(r["marker"], r["start"]): r for r in qc.gap_table(gappy, filled, rate=100.0)}
-    jump, end = rows[("1", 100)], rows[("2", 280)]
-    assert jump["kind"] == "interpolated" and "teleport" in jump["verdict"]
-    assert end["kind"] == "extrapolated" and "extrapolated" in end["verdict"]
-    assert "teleport" not in end["verdict"]
+    filled[50:60, 3] += 40.0 * np.linspace(0, 1, 10)[:, None] * np.array([1.0, 0.0, 0.0])
+    filled[:40, 5] = np.nan
+    rows = rows_by_start(qc.gap_table(gappy, filled, 100.0, [f"M{j}" for j in range(6)],
+                                      units="mm"))
+    jump, exact, bent, end, empty = (rows[("M1", 100)], rows[("M2", 200)], rows[("M3", 50)],
+                                     rows[("M4", 270)], rows[("M5", 0)])
+    assert jump["verdict"] == "reject" and any("above the cap" in r for r in jump["reasons"])
+    assert exact["verdict"] == "ok" and exact["reasons"] == []
+    assert bent["verdict"] in ("check", "reject")
+    assert any("spread" in r and "M" in r for r in bent["reasons"])
+    assert end["kind"] == "end" and end["verdict"] == "ok"
+    assert empty["verdict"] == "reject" and empty["reasons"] == ["left unfilled"]
+    text = qc.format_table(list(rows.values()))
+    cap = jump["thresholds"].step_cap
+    assert f"{cap:.4g} mm" in text and "thresholds (mm)" in text
 
 
-def test_qc_cli_on_a_real_gap_file(recording, tmp_path, capsys):
+def test_a_step_exactly_at_the_cap_is_flagged():
+    """The constraints shorten a fill's steps to just below the cap: a gap that needed it ends at
+    the cap, and that must not pass as ok."""
+    X = body()
+    gappy = X.copy()
+    gappy[280:, 0] = np.nan
+    observed = np.isfinite(gappy).all(axis=2)
+    from torchfill.metrics import step_limit
+    from torchfill.constraints import STEP_FACTOR, STEP_PERCENTILE
+    cap = step_limit(X, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
+    filled = X.copy()
+    filled[280, 0] = X[279, 0] + 0.999 * cap * np.array([1.0, 0.0, 0.0])   # as _limit_steps leaves it
+    filled[281:, 0] = filled[280, 0] + (X[281:, 0] - X[280, 0])
+    row = rows_by_start(qc.gap_table(gappy, filled, 100.0, units="mm"))[("0", 280)]
+    assert row["max_step"] < cap and row["verdict"] != "ok"
+    assert any("at the cap" in r for r in row["reasons"])
+
+
+def loose(T: int = 300, J: int = 6, seed: int = 0) -> np.ndarray:
+    """Markers moving independently (no rigid partners, no segment-mates), in mm: (T, J, 3)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / 100.0
+    f, p = rng.uniform(0.2, 1.0, size=(1, J, 3)), rng.uniform(0, 6.3, size=(1, J, 3))
+    return 300 * np.sin(2 * np.pi * f * t + p) + rng.uniform(-500, 500, size=(1, J, 3))
+
+
+def test_the_error_estimate_decides_between_ok_check_and_reject():
+    X = loose()
+    gappy = X.copy()
+    for j in range(6):
+        gappy[40 * j + 20:40 * j + 40, j] = np.nan
+    std = np.full(X.shape[:2], np.nan)
+    per_coord = [1.0, 1.0, 1.0, 1.0, 15.0, 40.0]      # mm; 3-D RMS = sqrt(3) x
+    for j, s in enumerate(per_coord):
+        std[40 * j + 20:40 * j + 40, j] = s
+    rows = qc.gap_table(gappy, X, 100.0, std=std, units="mm", support=np.zeros(X.shape[:2], bool))
+    verdicts = [r["verdict"] for r in sorted(rows, key=lambda r: r["j"])]
+    assert verdicts == ["ok", "ok", "ok", "ok", "check", "reject"]
+    assert rows[0]["est_rmse"] == pytest.approx(np.sqrt(3.0))
+    # the same data in metres: the same verdicts, thresholds printed in m
+    rows_m = qc.gap_table(gappy / 1000, X / 1000, 100.0, std=std / 1000, units="m",
+                          support=np.zeros(X.shape[:2], bool))
+    assert [r["verdict"] for r in sorted(rows_m, key=lambda r: r["j"])] == verdicts
+    assert "> 0.008 m" in qc.format_table(rows_m)
+
+
+def test_frame_numbers_and_json_follow_the_file(tmp_path):
+    X = body(T=120)
+    gappy = X.copy()
+    gappy[30:45, 2] = np.nan
+    rows = qc.gap_table(gappy, X, 100.0, ["A", "B", "C", "D", "E", "F"], first_frame=290)
+    (row,) = qc.to_json(rows)
+    assert (row["marker"], row["first_frame"], row["last_frame"]) == ("C", 320, 334)
+    assert row["verdict"] in qc.VERDICTS and isinstance(row["reasons"], list)
+    assert row["est_rmse"] is None and row["segment"] is None
+    json.dumps(qc.to_json(rows))                     # plain JSON types only
+
+
+def test_qc_cli_on_a_c3d_numbered_from_290_and_on_its_trc(recording, tmp_path, capsys):
+    """walking_hybrid_1_1 starts at C3D frame 290; the TRC written from it starts at Frame# 290:
+    info, the text table, the JSON and the report number frames that way."""
+    src = recording("c3dorg_s26_walking_hybrid_1_1.c3d")
+    seq = torchfill.read(src)
+    trc = tmp_path / "wh.trc"
+    torchfill.write(seq, trc)
+    runs = torchfill.metrics.gap_runs(seq.mask)
+    expect = sorted((seq.labels[j], 290 + a, 290 + b - 1) for j, a, b in runs)
+    for path in (src, trc):
+        filled = tmp_path / f"f{path.suffix}"
+        out_json = tmp_path / f"{path.suffix[1:]}.json"
+        report = tmp_path / f"{path.suffix[1:]}.html"
+        assert main(["fill", str(path), "-o", str(filled), "-m", "pchip", "-q"]) == 0
+        capsys.readouterr()
+        assert main(["qc", str(path), str(filled), "-o", str(report), "--json", str(out_json)]) == 0
+        out = capsys.readouterr().out
+        got = json.loads(out_json.read_text())
+        assert sorted((r["marker"], r["first_frame"], r["last_frame"]) for r in got) == expect
+        assert "290-303" in out                     # R_ASIS's first gap, the file's numbering
+        page = report.read_text()
+        assert "numbered 290-961" in page and ">290<" in page
+        assert main(["info", str(path)]) == 0
+        info = capsys.readouterr().out
+        assert "numbered 290-961" in info and "290-303" in info
+
+
+def test_info_numbers_frames_from_the_c3d_first_frame(recording, capsys):
+    assert main(["info", str(recording("cmu_02_01.c3d"))]) == 0
+    assert "numbered 50-392" in capsys.readouterr().out
+
+
+def test_std_csv_numbers_frames_as_the_file_and_qc_reads_it_back(recording, tmp_path, capsys):
+    src = recording("c3dorg_s26_walking_hybrid_1_1.c3d")
+    filled, std = tmp_path / "f.c3d", tmp_path / "std.csv"
+    assert main(["fill", str(src), "-o", str(filled), "-m", "pchip", "--std", str(std), "-q"]) == 0
+    assert std.read_text().splitlines()[1].startswith("290,")
+    capsys.readouterr()
+    assert main(["qc", str(src), str(filled), "--std", str(std), "--json", "-",
+                 "-o", str(tmp_path / "r.html")]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert all(r["est_rmse"] is not None for r in got if r["verdict"] != "reject"
+               or r["reasons"] != ["left unfilled"])
+
+
+def test_verdict_tracks_the_true_error_on_the_tennis_file(recording):
+    """ktk_tennis_serve_nan against its clean twin: the default fill with its own error estimate;
+    no gap under 5 mm true RMS error is flagged, and the gap the estimate ranks worst is."""
+    gappy = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
+    truth = torchfill.read(recording("ktk_tennis_serve.c3d")).points
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out, std = torchfill.fill(gappy, return_std=True)
+    rows = qc.gap_table(gappy.points, out.points, gappy.rate, gappy.labels, std, units="m")
+    true = []
+    for r in rows:
+        e = np.linalg.norm(out.points[r["start"]:r["stop"], r["j"]]
+                           - truth[r["start"]:r["stop"], r["j"]], axis=1)
+        true.append(1000 * np.sqrt(np.nanmean(e ** 2)))
+    small = [r["verdict"] for r, t in zip(rows, true) if t < 5.0]
+    assert small and sum(v != "ok" for v in small) <= 0.15 * len(small)
+    worst = max(rows, key=lambda r: r["est_rmse"])
+    assert worst["verdict"] != "ok"
+
+
+def test_labels_with_dollars_reach_the_report_literally(tmp_path):
+    """Two ``$`` in a label were parsed as mathtext by matplotlib and crashed the report."""
+    X = body()
+    gappy = X.copy()
+    gappy[100:140, 1] = np.nan
+    filled = X.copy()
+    filled[120:140, 1] += 600.0                   # reject: gets a figure
+    gappy[10:20, 4] = np.nan                      # ok: in the table and the overview
+    names = ["a$b$c", "$\\frac{1}{0$", "_hidden", "x^2_{y}", "<i>&x", "ok"]
+    rows = qc.gap_table(gappy, filled, 100.0, names)
+    page = qc.html_report(gappy, filled, rows, title="t$1$", rate=100.0, units="mm", names=names)
+    assert page.count("<figure") == 1 and "<svg" in page
+    assert "$\\frac{1}{0$" in page or "$\\frac{1}{0$".replace("<", "&lt;") in page
+    assert "<i>&x" not in page and "&lt;i&gt;&amp;x" in page
+
+
+def test_report_is_self_contained_and_renders_in_a_headless_browser(recording, tmp_path, capsys):
     src = recording("c3dorg_s02_pc_real.c3d")
     filled = tmp_path / "pc_filled.c3d"
     report = tmp_path / "pc.html"
     assert main(["fill", str(src), "-o", str(filled), "-m", "pchip", "-q"]) == 0
     assert main(["qc", str(src), str(filled), "-o", str(report)]) == 0
-    out = capsys.readouterr().out
-    seq = torchfill.read(src)
-    n_gaps = len([1 for j, a, b in torchfill.metrics.gap_runs(seq.mask)])
-    kinds = [line.split()[3] for line in out.splitlines()[2:] if len(line.split()) > 3]
-    assert sum(k in ("interpolated", "extrapolated") for k in kinds) == n_gaps
     page = report.read_text()
-    assert page.startswith("<!doctype html>") and page.count("data:image/png;base64,") >= 1
+    seq = torchfill.read(src)
+    n_gaps = len([1 for j, a, b in torchfill.metrics.gap_runs(seq.mask)
+                  if not seq.mask[:, j].all()])
+    assert page.startswith("<!doctype html>") and "<svg" in page and "class='sortable'" in page
+    assert page.count("<tr class=") == n_gaps
+    for remote in ("http://", "https://", "src='//", 'src="//'):
+        assert remote not in page.replace("http://www.w3.org/2000/svg", "")
+    n_bad = sum(1 for line in page.splitlines() if line.startswith("<figure"))
+    assert n_bad == min(sum(1 for r in page.split("<tr class='")[1:]
+                            if not r.startswith("ok")), 200)
     browser = shutil.which("chromium") or shutil.which("chromium-headless-shell")
     if browser is None:
         pytest.skip("no headless chromium to render the report")
@@ -56,3 +231,44 @@ def test_qc_rejects_mismatched_files(recording, tmp_path, capsys):
     b = recording("mogapfill_gait-raw.csv")
     assert main(["qc", str(a), str(b), "-o", str(tmp_path / "x.html")]) == 2
     assert capsys.readouterr().err.startswith("torchfill: error: ")
+
+
+def test_qc_and_fill_report_on_openpose_folders_speak_pixels(tmp_path, capsys):
+    """A fill of 2-D keypoints is judged (not called unfilled), in px; ``fill DIR --report``
+    and ``--report-json`` work."""
+    from torchfill.sequence import MarkerSequence
+
+    X = body()[:, :, :2] + 500.0                   # keypoints in pixels
+    mask = np.zeros(X.shape[:2], dtype=bool)
+    mask[100:130, 1] = mask[200:220, 3] = mask[:5, 4] = True
+    seq = MarkerSequence(points=np.where(mask[..., None], np.nan, X), labels=[f"K{j}" for j in
+                         range(6)], rate=30.0, units="px")
+    src, out = tmp_path / "in", tmp_path / "out"
+    torchfill.write(seq, src)
+    report, rj = tmp_path / "r.html", tmp_path / "r.json"
+    assert main(["fill", str(src), "-o", str(out), "-m", "pchip", "--report", str(report),
+                 "--report-json", str(rj), "-q"]) == 0
+    got = json.loads(rj.read_text())
+    assert len(got) == 3 and all(r["reasons"] != ["left unfilled"] for r in got)
+    assert report.read_text().count("<tr class=") == 3
+    capsys.readouterr()
+    assert main(["qc", str(src), str(out), "-o", str(tmp_path / "q.html")]) == 0
+    text = capsys.readouterr().out
+    assert "thresholds (px)" in text and "rigid" not in text
+    assert "3 gaps: 3 ok" in text
+
+
+def test_a_short_gap_filled_off_its_interpolation_is_flagged_whatever_the_estimate():
+    """An interior gap of 0.05 s: the interpolation across it errs by far less than a mm; a fill
+    20 mm off it is ``check`` even when its own estimate says 0.1 mm."""
+    X = loose()
+    gappy = X.copy()
+    gappy[100:105, 2] = gappy[200:205, 3] = np.nan
+    filled = X.copy()
+    filled[100:105, 2] += np.array([20.0, 0.0, 0.0])
+    std = np.where(np.isnan(gappy).any(axis=2), 0.1, np.nan)
+    rows = rows_by_start(qc.gap_table(gappy, filled, 100.0, std=std, units="mm"))
+    off, fine = rows[("2", 100)], rows[("3", 200)]
+    assert off["verdict"] == "check" and any("interpolation" in r for r in off["reasons"])
+    assert off["disagree"] == pytest.approx(20.0, rel=0.05)
+    assert fine["verdict"] == "ok" and fine["disagree"] < 1.0

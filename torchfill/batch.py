@@ -85,21 +85,37 @@ def std_csv(seq) -> str:
     import numpy as np
 
     std = seq.meta["std"]
-    table = np.column_stack([np.arange(std.shape[0]), std])
+    first = int(getattr(seq, "first_frame", 0) or 0)        # frames numbered as the file does
+    table = np.column_stack([first + np.arange(std.shape[0]), std])
     out = io.StringIO()
     np.savetxt(out, table, delimiter=",", fmt="%.6g", comments="",
                header=",".join(["frame", *seq.labels]))
     return out.getvalue()
 
 
-def write_report(seq, filled, path, title: str, rows=None, plan=None) -> None:
+def qc_rows(seq, filled, std=None, method: str | None = None) -> list[dict]:
+    """The qc verdict rows of a fill (:func:`torchfill.qc.gap_table`): frames numbered as the
+    file does, in its units; ``method`` made the fill (a spatial method's trial-end fills in
+    frames with enough markers seen are not extrapolations in time)."""
+    from . import qc
+    from .solvers import base
+
+    spatial = bool(getattr(base._REGISTRY.get(method or ""), "spatial", False))
+    return qc.gap_table(seq.points, filled.points, seq.rate, seq.labels, std,
+                        units=seq.units, first_frame=int(getattr(seq, "first_frame", 0) or 0),
+                        support=filled.meta.get("support"), spatial=spatial)
+
+
+def write_report(seq, filled, path, title: str, rows=None, plan=None, *, std=None,
+                 method: str | None = None) -> None:
     """The qc HTML report of a fill, through the run's guarded writer ``plan``."""
     from . import qc
 
-    rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
-                                                      seq.labels, filled.meta.get("std"))
+    std = std if std is not None else filled.meta.get("std")
+    rows = rows if rows is not None else qc_rows(seq, filled, std, method)
     html = qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
-                          units=seq.units, names=seq.labels)
+                          units=seq.units, names=seq.labels, std=std,
+                          first_frame=int(getattr(seq, "first_frame", 0) or 0))
     if plan is None:
         from .io.outputs import Outputs
         with Outputs() as plan:
@@ -135,16 +151,18 @@ def fill_file(job: Job) -> dict:
             if job.training:
                 params["training"] = [torchfill.read(p) for p in job.training]
             plan.confirm_inputs()
+            want_std = bool(job.std or job.report)          # the qc verdict uses it
             out = torchfill.fill(seq, job.method, max_gap=job.max_gap,
-                                 return_std=bool(job.std), **params)
-            out = out[0] if job.std else out
+                                 return_std=want_std, **params)
+            out = out[0] if want_std else out
             plan.write_sequence(out, job.output)
             row["outputs"].append(job.output)
             if job.std:
                 plan.write_text(job.std, std_csv(out), "--std file")
                 row["outputs"].append(job.std)
             if job.report:
-                write_report(seq, out, job.report, job.input, plan=plan)
+                write_report(seq, out, job.report, job.input, plan=plan,
+                             method=job.method or torchfill.default_method())
                 row["outputs"].append(job.report)
         row["filled"] = row["missing"] - int(out.mask.sum())
         row["warnings"] = _texts(caught)
@@ -193,6 +211,7 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
     queue = deque((job, 1) for job in jobs)
     idle: list[tuple] = []
     busy: dict[int, tuple] = {}                     # pid -> (process, conn, job, attempt)
+    started: list[tuple] = []                       # every worker, whatever its state
 
     def start():
         parent, child = ctx.Pipe()
@@ -200,6 +219,7 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
             proc = ctx.Process(target=_worker, args=(child,), daemon=True)
             proc.start()
         child.close()
+        started.append((proc, parent))
         return proc, parent
 
     def died(proc, job, attempt):
@@ -260,8 +280,8 @@ def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
                     idle.append(start())
                 if row is not None:
                     yield row
-    finally:
-        _stop([(p, c) for p, c, *_ in busy.values()], idle)
+    finally:               # a worker handed a job a moment ago may be in neither list: all go
+        _stop([w for w in started if w not in idle], idle)
         for proc, conn, job, attempt in busy.values():
             for path in (job.output, job.report, job.std):
                 if path:
@@ -277,17 +297,21 @@ def _stop(running: list[tuple], idle: list[tuple]) -> None:
         except OSError:
             pass
     for proc, conn in running:
-        if proc.is_alive():
+        if proc.exitcode is None:
             proc.terminate()
     deadline = time.monotonic() + STOP_GRACE
     everyone = running + idle
     for proc, conn in everyone:
-        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.exitcode is None:
+            proc.join(max(0.0, deadline - time.monotonic()))
     for proc, conn in everyone:
-        if proc.is_alive():
+        if proc.exitcode is None:
             proc.kill()
             proc.join()
-        conn.close()
+        try:
+            conn.close()
+        except OSError:
+            pass
 
 
 def _death(code) -> str:

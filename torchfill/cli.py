@@ -42,7 +42,7 @@ def _main(argv: list[str] | None) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             status = args.run(args)
-        for w in caught:
+        for w in caught if getattr(args, "quiet", 0) < 2 else ():      # -qq: errors only
             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning)):
                 print(f"torchfill: warning: {_one_line(w.message)}", file=sys.stderr)
         return status
@@ -158,23 +158,29 @@ def _cmd_fill(args) -> int:
         plan.confirm_inputs()
         n_missing = int(seq.mask.sum())
         _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
+        want_std = bool(args.std or args.report or args.report_json)   # the qc verdict uses it
         with _naming(src):
             filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                    return_std=bool(args.std), **options)
-        filled = filled[0] if args.std else filled
-        _clear_progress(args)
+                                    return_std=want_std, **options)
+        filled = filled[0] if want_std else filled
         plan.write_sequence(filled, out_path, backup=backup)
         written = [out_path]
         if args.std:
             _write_std(filled, Path(args.std), plan)
             written.append(args.std)
-        if args.report:
-            _write_report(seq, filled, Path(args.report), str(src), plan=plan)
-            written.append(args.report)
+        if args.report or args.report_json:
+            rows = _qc_rows(seq, filled, filled.meta.get("std"), method)
+            if args.report:
+                _write_report(seq, filled, Path(args.report), str(src), rows, plan=plan)
+                written.append(args.report)
+            if args.report_json:
+                _write_json(rows, Path(args.report_json), plan)
+                written.append(args.report_json)
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
-    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
-               f"({info['n_iter']} iterations); {left} left unfilled -> "
+    steps = f" ({info['n_iter']} iterations)" if info["n_iter"] > info["windows"] else ""
+    _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s{steps}; "
+               f"{left} left unfilled -> "
                + ", ".join(map(str, written))
                + (f" (original kept as {backup})" if backup else ""))
     return 0
@@ -233,6 +239,8 @@ def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
         plan.add_output(args.std, "--std file")
     if args.report:
         plan.add_output(args.report, "report")
+    if getattr(args, "report_json", None):
+        plan.add_output(args.report_json, "--report-json file")
     return out, backup
 
 
@@ -351,27 +359,87 @@ def _cmd_qc(args) -> int:
     from torchfill.io.outputs import Outputs
 
     report = Path(args.output) if args.output else Path(args.filled).with_suffix(".qc.html")
+    to_file = args.json and args.json != "-"
     with Outputs() as plan:
         for path in (args.input, args.filled):
             _check_input(Path(path))
             plan.add_input(path)
+        if args.std:
+            plan.add_input(args.std)
         plan.add_output(report, "qc report", hint="give another -o")
-        seq, filled = torchfill.read(args.input), torchfill.read(args.filled)
+        if to_file:
+            plan.add_output(args.json, "--json file")
+        seq = torchfill.read(args.input, **_pose_options(args))
+        filled = _read_filled(args.filled, args)
         if filled.points.shape != seq.points.shape:
             raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
                              f"{args.input}'s {seq.points.shape}")
-        rows = qc.gap_table(seq.points, filled.points, seq.rate, seq.labels)
-        print(qc.format_table(rows, seq.units))
-        _write_report(seq, filled, report, str(args.filled), rows, plan=plan)
-    n_check = sum(r["verdict"] != "ok" for r in rows)
-    _say(args, f"{len(rows)} gaps, {n_check} to check -> {report}")
+        std = _read_std(Path(args.std), seq) if args.std else filled.meta.get("std")
+        rows = _qc_rows(seq, filled, std, args.method or torchfill.default_method())
+        if args.json == "-":
+            print(json.dumps(qc.to_json(rows), indent=1))
+        else:
+            print(qc.format_table(rows, seq.units))
+        _write_report(seq, filled, report, str(args.filled), rows, std, plan=plan)
+        if to_file:
+            _write_json(rows, Path(args.json), plan)
+    if not args.quiet:
+        print(f"{qc.summary(rows)} -> {report}", file=sys.stderr if args.json == "-" else sys.stdout)
     return 0
 
 
-def _write_report(seq, filled, path: Path, title: str, rows=None, plan=None) -> None:
+def _frame0(seq) -> int:
+    """The file's number of the first frame (C3D first frame, TRC Frame#; 0 for arrays)."""
+    return int(getattr(seq, "first_frame", 0) or 0)
+
+
+def _read_filled(path, args):
+    """A filled recording; an OpenPose folder's filled keypoints are read as points (also those
+    of folders filled before they were marked: confidence 0, coordinates written)."""
+    import torchfill
+
+    if Path(path).is_dir():
+        return torchfill.read(path, include_filled=True, **_pose_options(args, Path(path)))
+    return torchfill.read(path)
+
+
+def _read_std(path: Path, seq):
+    """The ``fill --std`` CSV (a frame column, one column per marker) as (T, J), by label."""
+    import numpy as np
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = f.readline().rstrip("\n").split(",")
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: not a std CSV written by 'fill --std' ({_one_line(err)})") \
+            from None
+    if table.shape[0] != seq.n_frames or table.shape[1] != len(head):
+        raise ValueError(f"{path}: {table.shape[0]} rows x {table.shape[1]} columns, expected "
+                         f"{seq.n_frames} frames and a column per marker")
+    column = {label: i for i, label in enumerate(head[1:], start=1)}
+    missing = [label for label in seq.labels if label not in column]
+    if missing:
+        raise ValueError(f"{path}: no column for marker(s) {', '.join(missing[:5])}")
+    return table[:, [column[label] for label in seq.labels]]
+
+
+def _qc_rows(seq, filled, std, method: str | None = None):
     from torchfill import batch
 
-    batch.write_report(seq, filled, path, title, rows, plan)
+    return batch.qc_rows(seq, filled, std, method)
+
+
+def _write_report(seq, filled, path: Path, title: str, rows=None, std=None, plan=None) -> None:
+    from torchfill import batch
+
+    batch.write_report(seq, filled, path, title, rows, plan, std=std)
+
+
+def _write_json(rows, path: Path, plan) -> None:
+    from torchfill import qc
+
+    plan.write_text(path, json.dumps(qc.to_json(rows), indent=1) + "\n", "qc JSON")
 
 
 def _cmd_fill_batch(args) -> int:
@@ -422,7 +490,8 @@ def _cmd_fill_batch(args) -> int:
     rows = []
     started = time.time()
     try:
-        with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar, \
+        with tqdm(total=len(jobs), unit="file", file=sys.stderr,
+                  disable=bool(args.quiet) or None) as bar, \
                 closing(batch.run(jobs, workers=args.workers, ray_address=args.ray)) as results:
             for row in results:
                 if row["error"]:
@@ -492,7 +561,6 @@ def _cmd_evaluate(args) -> int:
         with _naming(args.input):   # scored everywhere: no extrapolation limit
             filled = torchfill.fill(incomplete, method, progress=_progress(args),
                                     extrapolate=None, params=params)
-        _clear_progress(args)
         info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
         rows.append({"method": method, **{k: v * factor for k, v in errors.items()},
@@ -539,7 +607,9 @@ def _cmd_info(args) -> int:
     seen = seq.mask[:, ~never]
     labels = [_shown(label) for label in seq.labels]     # a newline in a label stays visible too
     print(seq)
-    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {_shown(seq.units)}, "
+    f0 = _frame0(seq)
+    print(f"frames {T} (numbered {f0}-{f0 + T - 1} as in the file), markers {seq.n_markers}, "
+          f"rate {seq.rate:g} Hz, units {_shown(seq.units)}, "
           f"{len(runs)} gaps, longest {max((b - a for _, a, b in runs), default=0)} frames")
     print(f"  {len(inner)} interior gap(s) (longest {max(inner, default=0)} frames), "
           f"{len(runs) - len(inner)} at the trial ends; "
@@ -554,12 +624,16 @@ def _cmd_info(args) -> int:
                                                  f"(markers {', '.join(map(str, idx))})"
                                                  for label, idx in dups.items()))
     width = max((len(label) for label in labels), default=6)
-    print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
+    print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}  "
+          "frames (file's numbering)")
     for j, label in enumerate(labels):
-        own = [b - a for k, a, b in runs if k == j]
+        spans = [(a, b) for k, a, b in runs if k == j]
+        own = [b - a for a, b in spans]
         if own or never[j] or args.all_markers:
+            where = ", ".join(f"{f0 + a}-{f0 + b - 1}" for a, b in spans[:4]) + \
+                (f", ... ({len(spans)} gaps)" if len(spans) > 4 else "")
             print(f"{label:<{width}}  {int(seq.mask[:, j].sum()):>8}  {len(own):>5}  "
-                  f"{max(own, default=0):>7}" + ("  never observed" if never[j] else ""))
+                  f"{max(own, default=0):>7}  " + ("never observed" if never[j] else where))
     return 0
 
 
@@ -693,25 +767,10 @@ def _say(args, text: str) -> None:
         print(text, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
 
 
-def _shows_progress(args) -> bool:
+def _progress(args) -> bool:
+    """A fill's bar (percent, time left; see torchfill.progress) on a terminal, unless -q. Not
+    on a terminal the command's own summary line is the only report."""
     return not getattr(args, "quiet", False) and sys.stderr.isatty()
-
-
-def _progress(args):
-    if not _shows_progress(args):
-        return None
-    start = time.perf_counter()
-
-    def show(info: dict) -> None:
-        extra = "  ".join(f"{k}={v:.3g}" for k, v in info.items() if k != "iter")
-        print(f"\r  iter {int(info['iter']):>5}  {time.perf_counter() - start:6.1f} s  {extra}"[:100],
-              end="", file=sys.stderr, flush=True)
-    return show
-
-
-def _clear_progress(args) -> None:
-    if _shows_progress(args):
-        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -743,6 +802,8 @@ def _parser() -> argparse.ArgumentParser:
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
     p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill "
                    "(several inputs: a folder, or a name with {stem})")
+    p.add_argument("--report-json", metavar="REPORT.json",
+                   help="also write the qc verdicts as JSON (one object per gap)")
     p.add_argument("--no-constraints", dest="constraints", action="store_false",
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
@@ -763,7 +824,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="which markers move together: a YAML file as 'torchfill info IN "
                         "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "
                         "recording); default: the tables when the labels fit, else the data")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_fill)
@@ -776,7 +838,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("filled", metavar="FILLED")
     p.add_argument("-o", "--output", metavar="REPORT.html",
                    help="HTML report (default: FILLED with suffix .qc.html)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("--json", metavar="OUT.json", help="also write the verdicts as JSON, one object "
+                   "per gap: marker, first_frame, last_frame (the file's numbering), verdict, "
+                   "est_rmse (file units), reasons, segment ('-': print it instead of the table)")
+    p.add_argument("--std", metavar="STD.csv",
+                   help="the fill's error estimate ('fill --std' output): verdicts use it")
+    p.add_argument("-m", "--method", help="the method that made FILLED (default: the default "
+                   "method); a spatial method's trial-end fills in frames with enough markers "
+                   "seen do not count as extrapolated in time")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
+    _add_pose_options(p)
     p.set_defaults(run=_cmd_qc)
 
     p = sub.add_parser("evaluate", help="simulate gaps on complete markers and score methods",
@@ -796,7 +868,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
     _add_threads(p)
     _add_pose_options(p)
     p.set_defaults(run=_cmd_evaluate)

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .constraints import constrain, constrain_candidates
+from .qc import EST_REJECT_MM, per_mm
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
@@ -52,7 +53,7 @@ _WINDOW = _Default(windows.WINDOW)
 
 def fill(data, method: str | None = None, *, params: dict | None = None, training=None,
          mask=None, max_gap: int | None = None, window: int | None = _WINDOW,
-         progress: Callable[[dict], None] | None = None, constraints: bool = True,
+         progress: bool | Callable[[dict], None] | None = False, constraints: bool = True,
          extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
          workers: int | None = None, segments=None, **legacy):
     """Fill the gaps of a recording.
@@ -86,8 +87,12 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         cross-fade (see :mod:`torchfill.windows`: the window grows to 6x the longest gap, the
         overlap is 2x the longest gap), so time grows linearly with the length and memory is
         bounded. ``None`` fills the whole recording at once.
-    progress : callable, optional
-        Called with each iteration's diagnostics (a dict from the solver's ``history_``).
+    progress : bool or callable
+        ``True``: a bar with percent and time left over the whole fill on a terminal (after
+        2 s), one summary line on stderr otherwise; ``False`` (default): nothing; a callable
+        receives every record: the solver's iteration diagnostics (a dict from its ``history_``,
+        or ``auto``'s ``fit``/``fits`` as candidates finish) with ``window``, ``windows`` and
+        ``max_iter`` (see :mod:`torchfill.progress`).
     constraints : bool
         Make the fill obey the body (default): rigid donors, continuity at gap edges, no steps
         beyond the observed motion, samples inside the observed volume, no invented blackout
@@ -158,6 +163,8 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers expected an int >= 1 or None, found {workers!r}")
+    if not (progress is None or isinstance(progress, bool) or callable(progress)):
+        raise ValueError(f"progress expected True, False or a callable, found {progress!r}")
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
     if training is not None and "training" not in solver.fit_data:
@@ -214,11 +221,15 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         start = time.perf_counter()
         stds = {}
         index = {w: k for k, w in enumerate(plan.windows)}
-        shown = None if progress is None else lambda a, b: lambda d: progress(
-            {"window": index[a, b] + 1, "windows": len(index), **d})     # shown first
-        filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-            method, params, extra, Xk[a:b], unfit[a:b, keep], shown and shown(a, b), info, stds,
-            (a, b), constraints, return_std), workers=1 if Xk.device.type != "cpu" else workers)
+        shown = _progress(progress, windows=len(index), method=method)
+        try:
+            filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
+                method, params, extra, Xk[a:b], unfit[a:b, keep], shown, info, stds,
+                (a, b), constraints, return_std, index[a, b] + 1, len(index)),
+                workers=1 if Xk.device.type != "cpu" else workers)
+        except BaseException:
+            shown.close()                           # no half-drawn bar before the error line
+            raise
         info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
         if len(stds) == len(plan.windows):      # every window has an estimate
             part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
@@ -232,10 +243,14 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         if not whole:
             out[:, keep] = part
     if constraints and bool(todo.any()):
+        shown.post_step()
         out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, seg_idx,
                                               solver.spatial)
         if extrapolate is not None and isinstance(data, MarkerSequence):
             info["rejected"] = _reject(out, std, missing, data.units)
+    if bool(todo.any()):
+        shown.close(f"{method} filled {int(todo.sum())} samples ({info['windows']} window(s), "
+                    f"{info['n_iter']} iterations)")
     if max_gap is not None:
         out = _unfill_long_gaps(out, given, missing, max_gap)
     result = _as_kind(out, kind, data, info, missing)
@@ -384,17 +399,30 @@ def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data
     return torch.where(own, out, new), report
 
 
+def _progress(progress, **kw):
+    """The fill's progress object (:func:`torchfill.progress.make`; imported only when used)."""
+    if progress is None or progress is False:
+        from .progress import Silent     # light: no tqdm
+        return Silent()
+    from .progress import make
+    return make(progress, **kw)
+
+
 def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
-                 progress: Callable[[dict], None] | None, info: dict,
+                 progress, info: dict,
                  stds: dict | None = None, key: tuple[int, int] = (0, 0),
-                 constraints: bool = True, holdout: bool = False) -> torch.Tensor:
+                 constraints: bool = True, holdout: bool = False, window: int = 1,
+                 windows: int = 1) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
     steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
     ``stds``: a dict that receives the window's error estimate (T, J) under its frame range (the
     solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
     solver = get_solver(method, **params)
-    filled = solver.fit(X, missing, callback=progress, **extra).transform(X)
+    where = {"window": window, "windows": windows, "max_iter": solver.max_iter}
+    filled = solver.fit(X, missing, callback=lambda d: progress.update({**where, **d}),
+                        **extra).transform(X)
+    progress.window_done(window, solver.n_iter_)
     with _LOCK:                                 # windows may be solved in threads
         params.update(solver.carry())           # the next window reuses what this one chose
         info["n_iter"] += solver.n_iter_
@@ -484,23 +512,21 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     return seq
 
 
-#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above this
-#: many mm is worse than no sample for a user (OpenSim IK, for one, simply skips a missing
-#: marker): with the default policy (``extrapolate`` not None) it is left NaN -- at a trial end
-#: from the first such sample to the end of the trial, inside a trial the whole gap when its RMS
-#: estimate is above it. Calibrated on the real-gap-pattern suite and the IK benchmark
-#: (docs/ik.md, scripts/calibrate_qc.py).
-REJECT_MM = 30.0
-#: Millimetres per unit of the units this policy knows (others, e.g. pixels: no rejection).
-MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above the QC's
+#: reject threshold (``qc.EST_REJECT_MM``) is worse than no sample for a user (OpenSim IK, for
+#: one, simply skips a missing marker): with the default policy (``extrapolate`` not None) it is
+#: left NaN -- at a trial end from the first such sample to the end of the trial, inside a trial
+#: the whole gap when its RMS estimate is above it (docs/ik.md measures what that does to joint
+#: angles).
+REJECT_MM = EST_REJECT_MM
 
 
 def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str) -> int:
     """Leave NaN the filled samples whose error estimate is above ``REJECT_MM`` (see there);
     returns how many were left NaN (one warning says so)."""
-    scale = MM_PER_UNIT.get(str(units).strip().lower())
-    if scale is None or not bool(torch.isfinite(std).any()):
-        return 0
+    if str(units).strip().lower() not in ("mm", "cm", "m") or not bool(torch.isfinite(std).any()):
+        return 0                                    # e.g. pixels: no threshold in mm
+    scale = 1.0 / per_mm(units)
     T = out.shape[0]
     err = (3.0 ** 0.5 * std * scale).cpu().numpy()
     filled = (missing & torch.isfinite(out).all(dim=2)).cpu().numpy()

@@ -115,8 +115,115 @@ class MarkerSequence:
         keep = [j for j in range(self.n_markers) if j not in drop]
         return self.with_points(points).select(keep)
 
+    # -- the ecosystem's data types (each imported on use; see the ``interop`` extra) -----------
+    def _axes(self) -> list[str]:
+        return ["x", "y", "z"][: self.points.shape[2]]
+
+    def _time(self) -> np.ndarray:
+        return np.arange(self.n_frames) / float(self.rate)
+
+    def to_pandas(self):
+        """A :class:`pandas.DataFrame`: one row per frame, index ``time`` in seconds, columns a
+        MultiIndex ``(marker, axis)`` with axis ``x``, ``y`` (, ``z``); NaN where missing.
+        ``df.attrs`` holds ``rate`` and ``units`` (read back by :meth:`from_pandas`)."""
+        import pandas as pd
+
+        columns = pd.MultiIndex.from_product([self.labels, self._axes()], names=["marker", "axis"])
+        df = pd.DataFrame(self.points.reshape(self.n_frames, -1).copy(), columns=columns,
+                          index=pd.Index(self._time(), name="time"))
+        df.attrs.update(rate=float(self.rate), units=self.units)
+        return df
+
+    @classmethod
+    def from_pandas(cls, df, rate: float | None = None, units: str | None = None) -> "MarkerSequence":
+        """A sequence from a DataFrame laid out as :meth:`to_pandas` writes it (MultiIndex columns
+        ``(marker, axis)``, markers in the order they first appear). ``rate``: default
+        ``df.attrs["rate"]``, else from the time index (seconds); ``units``: default
+        ``df.attrs["units"]``, else "mm"."""
+        if getattr(df.columns, "nlevels", 1) != 2:
+            raise ValueError("expected DataFrame columns as a MultiIndex (marker, axis), found "
+                             f"{df.columns.nlevels} level(s)")
+        labels = list(dict.fromkeys(df.columns.get_level_values(0)))
+        axes = list(dict.fromkeys(df.columns.get_level_values(1)))
+        if len(axes) not in (2, 3) or df.shape[1] != len(labels) * len(axes):
+            raise ValueError(f"expected 2 or 3 axes for each of the {len(labels)} markers, found "
+                             f"{df.shape[1]} columns over axes {axes}")
+        points = np.stack([df[m][axes].to_numpy(dtype=np.float64) for m in labels], axis=1)
+        rate = _rate(rate, df.attrs.get("rate"), np.asarray(df.index, dtype=np.float64))
+        return cls(points, labels, rate=rate, units=units or df.attrs.get("units", "mm"))
+
+    def to_xarray(self):
+        """An :class:`xarray.DataArray` with dims ``(time, marker, axis)`` (time in seconds) and
+        attrs ``rate`` and ``units``; NaN where missing."""
+        import xarray as xr
+
+        return xr.DataArray(self.points.copy(), dims=("time", "marker", "axis"),
+                            coords={"time": self._time(), "marker": list(self.labels),
+                                    "axis": self._axes()},
+                            attrs={"rate": float(self.rate), "units": self.units})
+
+    @classmethod
+    def from_xarray(cls, da, rate: float | None = None, units: str | None = None) -> "MarkerSequence":
+        """A sequence from a DataArray with dims ``time``, ``marker``, ``axis`` (any order), as
+        :meth:`to_xarray` writes it."""
+        da = da.transpose("time", "marker", "axis")
+        rate = _rate(rate, da.attrs.get("rate"), np.asarray(da["time"], dtype=np.float64))
+        return cls(np.asarray(da.values, dtype=np.float64), [str(m) for m in da["marker"].values],
+                   rate=rate, units=units or da.attrs.get("units", "mm"))
+
+    def to_ktk(self):
+        """A Kinetics Toolkit ``TimeSeries``: ``time`` in seconds, ``data[label]`` a ``(T, 4)``
+        array ``[x, y, z, 1]`` (all NaN where missing, as ``ktk.read_c3d`` gives), the unit in
+        ``info[label]["Unit"]``. 3-D markers with distinct labels only."""
+        import kineticstoolkit as ktk
+
+        if self.points.shape[2] != 3:
+            raise ValueError(f"Kinetics Toolkit points are 3-D, found {self.points.shape[2]}-D data")
+        if self.duplicates():
+            raise ValueError(f"duplicate labels {sorted(self.duplicates())} cannot be TimeSeries "
+                             "keys (see merge_duplicates())")
+        ts = ktk.TimeSeries(time=self._time())
+        ones = np.ones((self.n_frames, 1))
+        for j, label in enumerate(self.labels):
+            data = np.concatenate([self.points[:, j], ones], axis=1)
+            data[~np.isfinite(self.points[:, j]).all(axis=1)] = np.nan
+            ts.data[label] = data
+            ts.add_info(label, "Unit", self.units, in_place=True)
+        return ts
+
+    @classmethod
+    def from_ktk(cls, ts, rate: float | None = None, units: str | None = None) -> "MarkerSequence":
+        """A sequence from a Kinetics Toolkit ``TimeSeries`` of points (``(T, 4)`` or ``(T, 3)``
+        arrays, e.g. from ``ktk.read_c3d(...)["Points"]``); the unit from ``info[label]["Unit"]``
+        (default "m", ktk's own), the rate from ``time``."""
+        labels = list(ts.data)
+        if not labels:
+            raise ValueError("the TimeSeries holds no data")
+        bad = [k for k in labels if np.ndim(ts.data[k]) != 2 or np.shape(ts.data[k])[1] not in (3, 4)]
+        if bad:
+            raise ValueError(f"expected (T, 4) or (T, 3) point arrays, found {bad[0]!r} of shape "
+                             f"{np.shape(ts.data[bad[0]])}")
+        points = np.stack([np.asarray(ts.data[k], dtype=np.float64)[:, :3] for k in labels], axis=1)
+        info = getattr(ts, "info", None) or getattr(ts, "data_info", {})
+        found = {info.get(k, {}).get("Unit") for k in labels} - {None}
+        if units is None and len(found) > 1:
+            raise ValueError(f"the points have several units {sorted(found)}; pass units=")
+        rate = _rate(rate, None, np.asarray(ts.time, dtype=np.float64))
+        return cls(points, labels, rate=rate, units=units or (found.pop() if found else "m"))
+
     def __repr__(self) -> str:
         missing = 100.0 * self.mask.mean() if self.points.size else 0.0
         name = self.source.name if self.source else "<memory>"
         return (f"MarkerSequence({name}: {self.n_frames} frames x {self.n_markers} markers, "
                 f"{self.rate:g} Hz, {self.units}, {missing:.1f}% missing)")
+
+
+def _rate(rate: float | None, stored, time: np.ndarray) -> float:
+    """Frames per second: ``rate``, else the stored one, else from a time axis in seconds."""
+    for value in (rate, stored):
+        if value is not None:
+            return float(value)
+    step = np.diff(time)
+    if step.size == 0 or not np.all(np.isfinite(step)) or np.median(step) <= 0:
+        raise ValueError("cannot tell the frame rate from the time axis; pass rate=")
+    return float(f"{1.0 / np.median(step):.9g}")     # 1 / (1/120) is 120.00000000000043

@@ -258,7 +258,7 @@ def test_write_back_onto_the_source_itself(recording, tmp_path):
 
 
 def test_integer_overflow_leaves_that_sample_unfilled_and_says_where(recording, tmp_path):
-    """Issue #18: one value beyond int16 x scale no longer sinks the whole write; the other
+    """One value beyond int16 x scale no longer sinks the whole write; the other
     filled samples are written, the one that does not fit stays invalid, a warning names it."""
     path = recording("biomechzoo_hockey_wrist_shot_009.c3d")
     seq = torchfill.read(path)

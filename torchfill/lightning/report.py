@@ -4,7 +4,6 @@ solvers' diagnostics (iterations, chosen rank), a worst/median-seed stability ch
 plots."""
 from __future__ import annotations
 
-import datetime as _dt
 from pathlib import Path
 
 import numpy as np
@@ -140,7 +139,7 @@ def _intro(cfg: Config, rows: list[dict], by: list[str], command: str, notes, sk
         parts += [str(cfg.raw["description"]).strip(), ""]
     segments = (f", {cfg.segments[1]} test segments of {cfg.segments[0]} frames per recording"
                 if cfg.segments else "")
-    parts += [f"Regenerate: `{command}` — {_dt.date.today().isoformat()}.", "",
+    parts += [f"Regenerate: `{command}`.", "",
               f"Protocol `{cfg.protocol}`, grid {cfg.grid}{segments}, seeds {seeds}: {len(done)} "
               "finished cases" + (f", {len(failed)} failed" if failed else "") + ". "
               "Cells: mean ± std (ddof=1) over seeds"

@@ -1,0 +1,227 @@
+"""Calibrate and check the QC verdict (torchfill.qc) on gaps whose truth is known.
+
+Cases, deterministic from seeds:
+
+- ``ktk_tennis_serve_nan`` against its clean twin ``ktk_tennis_serve``;
+- real gap masks laid onto complete recordings: the missing-marker masks of real gapped files
+  (walking_hybrid, s28_type1, ktk_basket_sprint, c3d_sample_bts, codamotion, numediart) over a
+  stretch of a complete recording (HDM05, CMU, OpenSim TRCs, ...) of the source's length, source
+  markers assigned to truth markers at random (seeded); a sample is hidden only where the truth is
+  observed. ``torchfill.gaps.transplant`` is used instead when the package has it.
+
+Each case is filled once with the default method (``return_std=True``, default extrapolation
+limit) and cached (``--cache``); the table then judges every filled gap with ``qc.gap_table`` --
+which sees the input, the fill and its std, never the truth -- and compares the verdict with the
+gap's true RMS error (3-D, over its filled frames). The targets:
+
+- of the gaps whose true RMS error is above both 10 mm and 3 x the case's median gap error,
+  >= 90 % are ``check`` or ``reject``;
+- of the gaps below 5 mm, <= 15 % are not ``ok``.
+
+    OMP_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python scripts/calibrate_qc.py [--cache DIR]
+        [--only NAME ...] [--refill] [--rows]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+import torchfill
+from torchfill import qc
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("TORCHFILL_DATA") or REPO / ".." / "shared" / "data").resolve()
+
+#: name, gap source (its mask), truth recording, seed
+TRANSPLANTS = [
+    ("wh11_cmu8502", "c3dorg_s26_walking_hybrid_1_1.c3d", "cmu_85_02.c3d", 0),
+    ("wh11_hamner", "c3dorg_s26_walking_hybrid_1_1.c3d", "osim_hamner_subject02_running.trc", 1),
+    ("wh15_hamner", "c3dorg_s26_walking_hybrid_1_5.c3d", "osim_hamner_subject02_running.trc", 2),
+    ("wh13_zoo", "c3dorg_s26_walking_hybrid_1_3.c3d", "biomechzoo_hockey_wrist_shot_009.c3d", 3),
+    ("wh14_cmu8502", "c3dorg_s26_walking_hybrid_1_4.c3d", "cmu_85_02.c3d", 4),
+    ("wh2_cgm24", "c3dorg_s26_walking_hybrid_2.c3d", "c3dorg_s00_vicon_cgm24_walking01.c3d", 5),
+    ("s28_rajrun", "c3dorg_s28_type1.c3d", "osim_rajagopal_motion_capture_run.trc", 6),
+    ("s28_cmu0201", "c3dorg_s28_type1.c3d", "cmu_02_01.c3d", 7),
+    ("sprint_hdmbd", "ktk_basket_sprint.c3d", "HDM_bd_01-02_01_120.c3d", 8),
+    ("bts_cmu8502", "ktk_c3d_sample_bts.c3d", "cmu_85_02.c3d", 9),
+    ("coda_hdmmm", "c3dorg_s00_codamotion_gaitwands_20150204.c3d", "hdm05_mm_01-02_03_120.c3d", 10),
+    ("numed_hdmbd", "numediart_03_rolling.c3d", "hdm05_bd_05-01_01_120.c3d", 11),
+]
+
+#: Frames kept at most per case (long sources are cut to a window that keeps a trial end).
+MAX_FRAMES = 1500
+
+MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0}
+
+
+def transplant_case(source: str, truth: str, seed: int):
+    """(gappy, truth) MarkerSequences: ``source``'s mask over a stretch of ``truth``."""
+    rng = np.random.default_rng(seed)
+    src = torchfill.read(DATA / source).mask
+    src = src[:, ~src.all(axis=0)]                       # markers never seen carry no pattern
+    full = torchfill.read(DATA / truth)
+    keep = ~full.mask.any(axis=0)                        # complete truth markers only
+    full = full.select(np.flatnonzero(keep))
+    T = min(len(src), full.n_frames, MAX_FRAMES)
+    s0 = 0 if len(src) <= T else int(rng.choice([0, len(src) - T]))   # keep one trial end
+    t0 = int(rng.integers(0, full.n_frames - T + 1))
+    mask_src = src[s0:s0 + T]
+    J = full.n_markers
+    cols = rng.permutation(mask_src.shape[1])[:J]        # source markers, at most J of them
+    targets = rng.permutation(J)[:len(cols)]
+    mask = np.zeros((T, J), dtype=bool)
+    mask[:, targets] = mask_src[:, cols]
+    truth_seq = full.with_points(full.points[t0:t0 + T])
+    gappy = truth_seq.with_points(np.where(mask[..., None], np.nan, truth_seq.points))
+    return gappy, truth_seq
+
+
+def suite_cases(only=None):
+    """The real-gap-pattern suite (scripts/real_gap_suite.py), when this checkout has it."""
+    import sys
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        import real_gap_suite
+    except ImportError:
+        return
+    for case in real_gap_suite.cases(DATA):
+        if only and case.name not in only:
+            continue
+        yield case.name, lambda c=case: (c.gapped(), c.truth)
+
+
+def cases(only=None, group="all"):
+    """(name, make) of every case: ``group`` "own" (tennis + TRANSPLANTS: the thresholds were
+    chosen on these), "suite" (the real-gap-pattern suite: held out), or "all"."""
+    if group in ("suite", "all"):
+        yield from suite_cases(only)
+    if group == "suite":
+        return
+    if not only or "tennis" in only:
+        gappy = torchfill.read(DATA / "ktk_tennis_serve_nan.c3d")
+        truth = torchfill.read(DATA / "ktk_tennis_serve.c3d")
+        yield "tennis", lambda: (gappy, truth)
+    for name, source, truth, seed in TRANSPLANTS:
+        if only and name not in only:
+            continue
+        yield name, lambda s=source, t=truth, k=seed: transplant_case(s, t, k)
+
+
+def filled_case(name, make, cache: Path, refill: bool) -> dict:
+    path = cache / f"{name}.npz"
+    if path.exists() and not refill:
+        z = np.load(path, allow_pickle=False)
+        return {k: z[k] for k in z.files}
+    gappy, truth = make()
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out, std = torchfill.fill(gappy, return_std=True)
+    seconds = time.perf_counter() - start
+    data = dict(points=gappy.points, filled=out.points, std=std, truth=truth.points,
+                rate=np.float64(gappy.rate), units=np.str_(gappy.units),
+                labels=np.array(gappy.labels), seconds=np.float64(seconds),
+                method=np.str_(out.meta["fill_info"]["method"]))
+    with tempfile.NamedTemporaryFile(dir=cache, suffix=".npz", delete=False) as tmp:
+        np.savez_compressed(tmp, **data)
+    os.replace(tmp.name, path)
+    return data
+
+
+def judged(name: str, d: dict) -> list[dict]:
+    """The qc rows of a case plus each gap's true RMS error in mm (NaN where nothing was filled)."""
+    units = str(d["units"])
+    from torchfill.solvers import base
+    spatial = bool(getattr(base._REGISTRY.get(str(d["method"])), "spatial", False))
+    rows = qc.gap_table(d["points"], d["filled"], float(d["rate"]), list(d["labels"]),
+                        std=d["std"], units=units, spatial=spatial)
+    F, truth = d["filled"], d["truth"]
+    for r in rows:
+        j, a, b = r["j"], r["start"], r["stop"]
+        e = np.linalg.norm(F[a:b, j] - truth[a:b, j], axis=1)
+        e = e[np.isfinite(e)]
+        r["case"] = name
+        r["true_mm"] = float(np.sqrt(np.mean(e ** 2))) * MM.get(units, 1.0) if e.size else np.nan
+        r["est_mm"] = r["est_rmse"] * MM.get(units, 1.0)
+    scored = [r["true_mm"] for r in rows if np.isfinite(r["true_mm"])]
+    med = float(np.median(scored)) if scored else np.nan
+    for r in rows:
+        r["median_mm"] = med
+        r["big"] = bool(r["true_mm"] > 10.0 and r["true_mm"] > 3 * med)
+        r["small"] = bool(r["true_mm"] < 5.0)
+    return rows
+
+
+def confusion(rows: list[dict]) -> str:
+    scored = [r for r in rows if np.isfinite(r["true_mm"])]
+    bins = [("< 5 mm", lambda r: r["true_mm"] < 5), ("5-10 mm", lambda r: 5 <= r["true_mm"] < 10),
+            (">= 10 mm, not big", lambda r: r["true_mm"] >= 10 and not r["big"]),
+            ("big (>10 mm & >3x median)", lambda r: r["big"])]
+    lines = [f"{'true RMS error':<27}{'gaps':>6}{'ok':>6}{'check':>7}{'reject':>8}{'not ok':>9}"]
+    for label, test in bins:
+        sel = [r for r in scored if test(r)]
+        c = Counter(r["verdict"] for r in sel)
+        n = len(sel)
+        bad = c["check"] + c["reject"]
+        lines.append(f"{label:<27}{n:>6}{c['ok']:>6}{c['check']:>7}{c['reject']:>8}"
+                     f"{(100.0 * bad / n if n else float('nan')):>8.1f}%")
+    big = [r for r in scored if r["big"]]
+    small = [r for r in scored if r["small"]]
+    hit = sum(r["verdict"] != "ok" for r in big) / max(len(big), 1)
+    false = sum(r["verdict"] != "ok" for r in small) / max(len(small), 1)
+    unscored = len(rows) - len(scored)
+    lines.append(f"big gaps flagged: {100 * hit:.1f} % (target >= 90 %); "
+                 f"gaps < 5 mm flagged: {100 * false:.1f} % (target <= 15 %); "
+                 f"{unscored} gap(s) left wholly unfilled (not scored)")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "torchfill_qc_cal"),
+                        help="fills are cached here (delete it, or --refill, after the default "
+                             "method changes)")
+    parser.add_argument("--only", nargs="*")
+    parser.add_argument("--refill", action="store_true")
+    parser.add_argument("--cached-only", action="store_true",
+                        help="judge only the cases already filled in the cache")
+    parser.add_argument("--rows", action="store_true", help="print every big or flagged gap")
+    parser.add_argument("--group", choices=("own", "suite", "all"), default="all",
+                        help="own: tennis + this script's transplants (the thresholds were chosen "
+                             "on these); suite: the real-gap-pattern suite (held out)")
+    args = parser.parse_args()
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name, make in cases(args.only, args.group):
+        if args.cached_only and not (cache / f"{name}.npz").exists():
+            continue
+        d = filled_case(name, make, cache, args.refill)
+        got = judged(name, d)
+        rows += got
+        n = len(got)
+        print(f"{name:<14} {str(d['method']):<11} {d['points'].shape[0]:>5} frames "
+              f"{d['points'].shape[1]:>3} markers {n:>4} gaps, fill {float(d['seconds']):6.1f} s, "
+              f"median gap error {got[0]['median_mm'] if got else np.nan:6.2f} mm", flush=True)
+    print()
+    print(confusion(rows))
+    for name in dict.fromkeys(r["case"] for r in rows):
+        print(f"  {name}: " + confusion([r for r in rows if r["case"] == name]).splitlines()[-1])
+    if args.rows:
+        print("\ncase           marker       frames   true_mm est_mm verdict  reasons")
+        for r in rows:
+            if r["big"] or (r["small"] and r["verdict"] != "ok"):
+                print(f"{r['case']:<14} {r['marker'][:12]:<12} {r['start']:>4}-{r['stop'] - 1:<5}"
+                      f"{r['true_mm']:>7.1f} {r['est_mm']:>6.1f} {r['verdict']:<7}  "
+                      f"{'; '.join(r['reasons'])}")
+
+
+if __name__ == "__main__":
+    main()
