@@ -231,3 +231,26 @@ def test_dtype_must_be_a_floating_dtype():
     for bad in ("int32", "float16", torch.bfloat16, "double precision"):
         with pytest.raises(ValueError, match="dtype expected"):
             torchfill.fill(walk(), "linear", dtype=bad)
+
+
+def test_reject_leaves_samples_with_a_large_estimated_error_unfilled(recording):
+    """``reject=`` (mm) leaves NaN the filled samples whose error estimate is above it, with one
+    warning; the default keeps every fill (its estimate goes to the QC instead)."""
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_1.c3d"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        kept, std = torchfill.fill(seq, return_std=True)
+    with pytest.warns(torchfill.filling.UnfilledWarning, match="estimated error is above 30 mm"):
+        cut = torchfill.fill(seq, reject=30.0)
+    big = np.sqrt(3.0) * np.nan_to_num(std, nan=0.0) > 30.0
+    T = seq.n_frames
+    ends = np.zeros_like(big)                   # samples in gaps that touch a trial end
+    for j, a, b in metrics.gap_runs(seq.mask):
+        ends[a:b, j] = a == 0 or b == T
+    dropped = np.isfinite(kept.points).all(axis=2) & np.isnan(cut.points).any(axis=2)
+    # (the count also holds samples the file marks as filled earlier, which are put back)
+    assert cut.meta["fill_info"]["rejected"] >= int(dropped.sum()) > 0
+    assert np.isnan(cut.points[big & ends]).all()      # at a trial end: every sample above it
+    assert np.isfinite(kept.points[big]).all()         # kept by default
+    observed = ~seq.mask
+    assert np.array_equal(cut.points[observed], seq.points[observed])

@@ -355,18 +355,20 @@ def _worker(conn) -> None:
 
 @contextmanager
 def _no_sigint():
-    """Ignore SIGINT while a worker starts: it inherits that and never sees a terminal's ^C."""
+    """Block SIGINT while a worker starts: the worker inherits the blocked signal (and then ignores
+    it), so it never sees a terminal's ^C; a ^C that arrives meanwhile waits and reaches this
+    process once the worker has started (ignoring it here instead lost it: a batch ran on)."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextmanager

@@ -814,8 +814,7 @@ def _parser() -> argparse.ArgumentParser:
                    "sample (frames x markers, data units, NaN where observed)")
     p.add_argument("--extrapolate", metavar="SECONDS",
                    help="seconds a gap at a trial end may be extrapolated in time, in frames "
-                        "too empty for a spatial fill (default 0.25); 'none': fill every sample, "
-                        "also those whose estimated error is above 30 mm (left empty by default)")
+                        "too empty for a spatial fill (default 0.25); 'none': no limit")
     p.add_argument("--in-place", action="store_true",
                    help="write the fill onto IN itself (keeps the original as NAME.orig.EXT unless "
                         "--no-backup)")

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from .constraints import constrain, constrain_candidates
-from .qc import EST_REJECT_MM, per_mm
+from .qc import per_mm
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
@@ -55,7 +55,7 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
          mask=None, max_gap: int | None = None, window: int | None = _WINDOW,
          progress: bool | Callable[[dict], None] | None = False, constraints: bool = True,
          extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
-         workers: int | None = None, segments=None, **legacy):
+         workers: int | None = None, segments=None, reject: float | None = None, **legacy):
     """Fill the gaps of a recording.
 
     Parameters
@@ -119,6 +119,13 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         :func:`torchfill.ops.thread_map`). The first window runs alone and the fills blend in
         window order, so a fill does not depend on which window finishes first; it does depend on
         the threads per window, which change how float32 sums round (accuracy the same).
+    reject : float, optional
+        Leave NaN the filled samples whose estimated 3-D error is above this many mm (at a trial
+        end from the first such sample on; inside a trial the whole gap when its RMS estimate is
+        above it), with one warning; needs the error estimate (``auto``'s own) and a
+        MarkerSequence in mm, cm or m. Default None: keep every fill and let ``torchfill qc``
+        flag it -- on the OpenSim IK benchmark (docs/ik.md) leaving such samples out made the
+        joint angles worse (mean 4.63 deg at 30 mm, 3.22 at 60 mm, 2.93 keeping them).
     segments : optional
         Which markers move together (see :mod:`torchfill.segments`): a dict segment name ->
         marker labels, a path to a segments YAML file (``torchfill info --segments`` prints one),
@@ -141,7 +148,7 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         return _refill(data, prior, method, mask=mask, max_gap=max_gap, window=window,
                        progress=progress, constraints=constraints, extrapolate=extrapolate,
                        return_std=return_std, dtype=dtype, workers=workers, segments=segments,
-                       params=params, training=training, **legacy)
+                       reject=reject, params=params, training=training, **legacy)
     method = default_method() if method is None else method
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
@@ -150,7 +157,7 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
                               max_gap=max_gap, window=window, progress=progress,
                               constraints=constraints, extrapolate=extrapolate,
                               return_std=return_std, dtype=dtype, workers=workers,
-                              segments=segments)
+                              segments=segments, reject=reject)
     if not isinstance(data, MarkerSequence) and np.ndim(data) == 4:
         return _fill_batch(data, mask, again)
     if isinstance(data, torch.Tensor) and data.dtype in (torch.float16, torch.bfloat16):
@@ -246,8 +253,8 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         shown.post_step()
         out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, seg_idx,
                                               solver.spatial)
-        if extrapolate is not None and isinstance(data, MarkerSequence):
-            info["rejected"] = _reject(out, std, missing, data.units)
+        if reject is not None and isinstance(data, MarkerSequence):
+            info["rejected"] = _reject(out, std, missing, data.units, reject)
     if bool(todo.any()):
         shown.close(f"{method} filled {int(todo.sum())} samples ({info['windows']} window(s), "
                     f"{info['n_iter']} iterations)")
@@ -512,18 +519,12 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     return seq
 
 
-#: A filled sample whose estimated 3-D error (sqrt(3) x the per-coordinate std) is above the QC's
-#: reject threshold (``qc.EST_REJECT_MM``) is worse than no sample for a user (OpenSim IK, for
-#: one, simply skips a missing marker): with the default policy (``extrapolate`` not None) it is
-#: left NaN -- at a trial end from the first such sample to the end of the trial, inside a trial
-#: the whole gap when its RMS estimate is above it (docs/ik.md measures what that does to joint
-#: angles).
-REJECT_MM = EST_REJECT_MM
-
-
-def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str) -> int:
-    """Leave NaN the filled samples whose error estimate is above ``REJECT_MM`` (see there);
-    returns how many were left NaN (one warning says so)."""
+def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str,
+            limit_mm: float) -> int:
+    """Leave NaN the filled samples whose estimated 3-D error (sqrt(3) x the per-coordinate std)
+    is above ``limit_mm`` -- at a trial end from the first such sample to the end of the trial,
+    inside a trial the whole gap when its RMS estimate is above it; returns how many were left NaN
+    (one warning says how many)."""
     if str(units).strip().lower() not in ("mm", "cm", "m") or not bool(torch.isfinite(std).any()):
         return 0                                    # e.g. pixels: no threshold in mm
     scale = 1.0 / per_mm(units)
@@ -533,22 +534,22 @@ def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: 
     count = 0
     for j, a, b in gap_runs(filled):
         e = np.nan_to_num(err[a:b, j], nan=0.0)
-        bad = np.flatnonzero(e > REJECT_MM)
+        bad = np.flatnonzero(e > limit_mm)
         if bad.size == 0:
             continue
         if a == 0 and b < T:                        # trial start: far part, up to the worst
             drop = slice(a, a + int(bad.max()) + 1)
         elif b == T and a > 0:                      # trial end: from the first bad to the end
             drop = slice(a + int(bad.min()), b)
-        elif float(np.sqrt(np.mean(e ** 2))) > REJECT_MM:
+        elif float(np.sqrt(np.mean(e ** 2))) > limit_mm:
             drop = slice(a, b)
         else:
             continue
-        count += drop.stop - drop.start
+        count += int(torch.isfinite(out[drop, j]).all(dim=1).sum())     # not those already NaN
         out[drop, j] = float("nan")
     if count:
         warnings.warn(f"{count} filled sample(s) left unfilled: their estimated error is above "
-                      f"{REJECT_MM:g} mm (extrapolate=None fills them)", UnfilledWarning,
+                      f"{limit_mm:g} mm (reject=None fills them)", UnfilledWarning,
                       stacklevel=3)
     return count
 

@@ -56,7 +56,7 @@ from ..solvers.rigid import index_segments, rigid_pairs
 EST_CHECK_MM = 8.0
 EST_RELATIVE = 1.0
 #: Estimated RMS error (mm) above which a gap is ``reject`` (the default fill leaves samples
-#: estimated above 30 mm unfilled: ``filling.REJECT_MM``).
+#: estimated above a limit unfilled only when asked: ``fill(reject=...)``).
 EST_REJECT_MM = 30.0
 #: A step at or above this share of the cap counts as "at the cap".
 STEP_AT_CAP = 0.99

@@ -70,10 +70,13 @@ DEFAULT_CANDIDATES = ("pchip", "spline", "rigid", "li", "lgrnn", "glr", "pma", "
 INTERIOR = ("tucker_tnn",)
 INTERIOR_SHARE = 0.25
 #: Candidates that fill only some samples (NaN elsewhere), with the parameters that make them so:
-#: ``rigid`` where three segment-mates are seen. The samples such a candidate fills form gap
+#: ``rigid`` where three segment-mates are seen and its own error estimate (measured on observed
+#: frames) is within 1.5 % of the body's size (about 10 mm): a soft-tissue segment carried far
+#: from its reference frames won the hold-out of a 100-frame window of 20 markers in a flip
+#: (cmu_85_02) and filled it at 28 mm where pma gives 10.5. The samples such a candidate fills form gap
 #: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
 #: has no weight.
-PARTIAL = {"rigid": {"fallback": False}}
+PARTIAL = {"rigid": {"fallback": False, "max_error": 0.015}}
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).

@@ -137,6 +137,21 @@ def _scale(X, observed, st, min_frames) -> float:
     return float(np.median(d)) if d.size else 1.0
 
 
+def body_size(X: np.ndarray, seen: np.ndarray, frames: int = 50) -> float:
+    """The median distance between the markers seen together, over ``frames`` evenly spaced
+    frames with the most markers seen: the body's size in the data's units (cheap: no pairs'
+    statistics over time)."""
+    count = seen.sum(axis=1)
+    order = np.argsort(-count, kind="stable")[:max(frames, 1)]
+    d = []
+    for t in order:
+        P = X[t, seen[t]]
+        if len(P) > 1:
+            i, k = np.triu_indices(len(P), 1)
+            d.append(np.linalg.norm(P[i] - P[k], axis=1))
+    return float(np.median(np.concatenate(d))) if d else 1.0
+
+
 def _numpy(X) -> np.ndarray:
     if isinstance(X, torch.Tensor):
         return X.detach().cpu().numpy()
@@ -443,6 +458,10 @@ class Rigid(Solver):
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
         "fallback": Param(True, bool, doc="PCHIP where fewer mates are seen (False: leave NaN "
                                           "there, as auto's candidate does)"),
+        "max_error": Param(None, float, low=0.0, allow_none=True,
+                           doc="leave a sample to the other models (NaN, or PCHIP with fallback) "
+                               "where its estimated 3-D error exceeds this share of the body's "
+                               "size (median marker distance); None: no limit"),
     }
 
     def _initialize(self) -> None:
@@ -455,7 +474,13 @@ class Rigid(Solver):
         segments = self.segments if self.segments is not None else "data"
         est, std, self.segment_of_ = segment_fill(X.cpu().numpy(), seen.cpu().numpy(), segments,
                                                   min_mates=self.min_partners)
-        done = torch.from_numpy(np.isfinite(est).all(axis=2)).to(seen.device)
+        ok = np.isfinite(est).all(axis=2)
+        if self.max_error is not None:                   # only where its own estimate is small
+            size = body_size(X.cpu().numpy(), seen.cpu().numpy())
+            ok &= np.sqrt(3.0) * np.nan_to_num(std, nan=np.inf) <= self.max_error * size
+            est = np.where(ok[..., None], est, np.nan)
+            std = np.where(ok, std, np.nan)
+        done = torch.from_numpy(ok).to(seen.device)
         self.rigid_done_ = done
         self.std_ = torch.from_numpy(std).to(self.M_) * self.sigma_        # in the data's units
         R = torch.from_numpy(est).to(self.M_)
