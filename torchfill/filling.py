@@ -530,9 +530,8 @@ def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: 
     scale = 1.0 / per_mm(units)
     T = out.shape[0]
     err = (3.0 ** 0.5 * std * scale).cpu().numpy()
-    filled = (missing & torch.isfinite(out).all(dim=2)).cpu().numpy()
     count = 0
-    for j, a, b in gap_runs(filled):
+    for j, a, b in gap_runs(missing.cpu().numpy()):         # the gaps, parts left NaN or not
         e = np.nan_to_num(err[a:b, j], nan=0.0)
         bad = np.flatnonzero(e > limit_mm)
         if bad.size == 0:
