@@ -99,9 +99,12 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         frames (see :mod:`torchfill.constraints`). ``False`` returns the method's own fill, as in
         its paper.
     extrapolate : float or None
-        Seconds a gap touching a trial end may be extrapolated without rigid donors (default
-        0.25 s); the rest is left NaN with a warning. Needs the rate of a MarkerSequence: arrays
-        and tensors have no limit. None: no limit. Only with ``constraints``.
+        Seconds a gap touching a trial end may be extrapolated in time (default 0.25 s); the rest
+        is left NaN with a warning. Samples filled from rigid donors, and -- for a spatial method
+        such as the default (``Solver.spatial``) -- samples in frames with at least three markers
+        seen, are not extrapolations in time and are not cut. Needs the rate of a
+        MarkerSequence: arrays and tensors have no limit. None: no limit. Only with
+        ``constraints``.
     return_std : bool
         Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
         each filled sample, in the data's units, NaN where observed or left unfilled (``auto``

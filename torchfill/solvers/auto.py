@@ -11,9 +11,11 @@ How (observed data only, never the ground truth of the gaps):
 2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
    that fails on the recording (e.g. ``pca_train`` without enough complete frames, ``rigid`` or
    ``pma`` on 2-D keypoints) is dropped. Given a ``post`` step as fit data (``fill()`` passes its
-   constraints post-step when they are on) each fill first goes through it, so candidates are scored on what
-   fill() will return; held-out samples that rigid donors fill (the same for every candidate) do
-   not count in the choice.
+   constraints post-step when they are on) each fill first goes through it, so candidates are
+   scored on what fill() will return; held-out samples that rigid donors fill (the same for every
+   candidate) do not count in the choice. ``rigid`` fills only where three segment-mates are
+   seen and its own error estimate is small (``PARTIAL``); ``tucker_tnn`` runs only when long
+   interior gaps hold a quarter of the missing samples (``INTERIOR``).
 3. Each gap (real or held out) gets a kind: at a trial end or inside, its length (``<= 20``,
    ``<= 80``, longer frames), and whether it is fast (its frames move more than ``FAST`` times the
    recording's median frame motion, measured on the markers seen there). Per kind, the candidates'
