@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import math
 import os
 import shlex
@@ -427,16 +426,6 @@ def case_table(rows: list[dict], methods: list[str]) -> str:
     return "\n".join(lines)
 
 
-def write_csv(path: Path, rows: list[dict]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=keys)
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-
-
 def write_doc(path: Path, text: str) -> None:
     """Put ``text`` between the page's ``bench_ik`` markers (scripts/docblock.py)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -503,6 +492,8 @@ def main(argv: list[str] | None = None) -> None:
     print()
     print(text)
     if args.results:
+        from docblock import write_csv
+
         write_csv(Path(args.results) / "ik_cases.csv", rows)
         write_csv(Path(args.results) / "ik_summary.csv", summary)
     if args.doc:

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 import torchfill
+from docblock import write_csv
 from torchfill import gaps
 from torchfill.data import data_dir
 from torchfill.metrics import gap_runs, rmse_missing
@@ -287,28 +288,19 @@ def main() -> None:
         print(f"{c.name}: " + ", ".join(f"{m} {float(row.get(m, np.nan)):.2f}" for m in methods),
               flush=True)
         if args.csv:
-            _write_csv(args.csv, rows)
+            write_csv(args.csv, rows)
     table = summary(rows, methods)
     print(table)
     if args.doc:
         from docblock import write_block
         write_block(args.doc, "mask_suite" if args.mask_suite else "real_gap_suite", table)
     if args.gaps_csv and per_gaps:
-        _write_csv(args.gaps_csv, [dict(zip(("case", "real_rmse", "est_std"), g)) for g in per_gaps])
+        write_csv(args.gaps_csv, [dict(zip(("case", "real_rmse", "est_std"), g)) for g in per_gaps])
         real = np.array([g[1] for g in per_gaps])
         est = np.array([g[2] for g in per_gaps])
         ok = np.isfinite(est)
         print(f"pooled per-gap Spearman {spearmanr(real[ok], est[ok]).statistic:.2f} "
               f"over {ok.sum()} gaps")
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
 
 
 if __name__ == "__main__":
