@@ -272,6 +272,14 @@ def test_a_killed_worker_costs_only_its_file(tmp_path, walk):
     assert _tagged_processes(tag) == []
 
 
+def _as_from_a_terminal() -> None:
+    """In the child before exec: SIGINT handled and unblocked, as a shell starts a foreground
+    command (a test run started in the background, ``cmd &``, would hand SIG_IGN down, and a
+    process that starts with SIGINT ignored never sees ^C)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 @pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
 def test_ctrl_c_stops_a_batch_at_once_and_leaves_no_worker(tmp_path, walk):
     inputs = tmp_path / "in"
@@ -284,7 +292,8 @@ def test_ctrl_c_stops_a_batch_at_once_and_leaves_no_worker(tmp_path, walk):
                              str(out), "-m", "svt", "-p", "max_iter=300", "-p", "tol=0",
                              "--workers", "2", "-q"],
                             env=_cli_env(tmp_path, tag), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_as_from_a_terminal)
     deadline = time.monotonic() + 300
     while not (out.is_dir() and any(p.suffix == ".npz" for p in out.iterdir())):
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
