@@ -243,10 +243,14 @@ def main() -> None:
                     help="comma-separated; 'default' is torchfill.fill's default")
     ap.add_argument("--csv", type=Path, help="write rows here as they finish")
     ap.add_argument("--gaps-csv", type=Path, help="per-gap real vs estimated error of the default")
-    ap.add_argument("--reuse", type=Path, help="take methods already scored in this CSV")
+    ap.add_argument("--reuse", type=Path, nargs="*", default=(),
+                    help="take methods already scored in these CSVs")
     ap.add_argument("--only", help="comma-separated substrings of case names to run")
     ap.add_argument("--seeds", type=int, default=1, help="seeds of the assignment and offset")
     ap.add_argument("--list", action="store_true", help="list the cases and stop")
+    ap.add_argument("--doc", type=Path, help="also write the summary into this docs page, between "
+                                             "its <!-- real_gap_suite:start/end --> markers "
+                                             "(mask_suite:start/end with --mask-suite)")
     ap.add_argument("--mask-suite", type=Path,
                     help="run the simulated-gap cases written by scripts/mask_suite.py in this "
                          "folder instead of the real gap patterns")
@@ -260,14 +264,16 @@ def main() -> None:
             print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, "
                   f"{int(c.mask.sum())} hidden, {100 * _trial_end_share(c.mask):.0f} % at trial ends")
         return
-    reuse = {}
-    if args.reuse and args.reuse.exists():
-        with open(args.reuse) as f:
-            reuse = {r["case"]: r for r in csv.DictReader(f)}
+    reuse: dict[str, dict] = {}
+    for path in args.reuse:
+        with open(path) as f:
+            for r in csv.DictReader(f):
+                reuse.setdefault(r["case"], {}).update({k: v for k, v in r.items() if v != ""})
     rows, per_gaps = [], []
     for c in suite:
         keep = {k: v for k, v in reuse.get(c.name, {}).items()
-                if any(k in (m, f"{m}_s", f"{m}_cpu") for m in methods if m != DEFAULT)}
+                if any(k in (m, f"{m}_s", f"{m}_cpu") for m in methods)
+                or (k in ("spearman", "within") and DEFAULT in methods)}
         row, g = run(c, methods, keep)
         rows.append(row)
         per_gaps += g
@@ -275,7 +281,11 @@ def main() -> None:
               flush=True)
         if args.csv:
             _write_csv(args.csv, rows)
-    print(summary(rows, methods))
+    table = summary(rows, methods)
+    print(table)
+    if args.doc:
+        from docblock import write_block
+        write_block(args.doc, "mask_suite" if args.mask_suite else "real_gap_suite", table)
     if args.gaps_csv and per_gaps:
         _write_csv(args.gaps_csv, [dict(zip(("case", "real_rmse", "est_std"), g)) for g in per_gaps])
         real = np.array([g[1] for g in per_gaps])

@@ -14,7 +14,6 @@ import os
 import time
 import warnings
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,8 @@ _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 @dataclass(frozen=True)
 class Job:
-    """One file to fill: where from, where to, and how."""
+    """One file to fill: where from, where to, and how (``params``: ``fill()`` keywords; ``report``
+    and ``std``: the side outputs of this file, as ``torchfill fill --report/--std`` writes them)."""
 
     input: str
     output: str
@@ -33,6 +33,9 @@ class Job:
     params: dict = field(default_factory=dict)
     max_gap: int | None = None
     training: tuple[str, ...] = ()
+    report: str | None = None
+    std: str | None = None
+    read_options: dict = field(default_factory=dict)
 
 
 def expand(items: list[str]) -> list[Path]:
@@ -41,7 +44,7 @@ def expand(items: list[str]) -> list[Path]:
     paths: list[Path] = []
     for item in items:
         path = Path(item)
-        if path.is_dir():
+        if path.is_dir() and not any(path.glob("*_keypoints.json")):
             paths.extend(sorted(p for p in path.iterdir()
                                 if p.is_file() and p.suffix.lower() in SUFFIXES))
         elif not path.exists() and glob.has_magic(item):
@@ -52,11 +55,12 @@ def expand(items: list[str]) -> list[Path]:
 
 
 def outputs(inputs: list[Path], out_dir: Path) -> list[Path]:
-    """``out_dir / name`` for each input; refuses to overwrite an input or write one name twice."""
+    """``out_dir / name`` for each input; refuses to overwrite an input or write one name twice
+    (the command line checks more through :class:`torchfill.io.outputs.Outputs`)."""
     outs = [out_dir / p.name for p in inputs]
     seen: dict[Path, Path] = {}
     for src, dst in zip(inputs, outs):
-        if dst.resolve() == src.resolve():
+        if os.path.realpath(dst) == os.path.realpath(src):
             raise ValueError(f"{src}: --out-dir would overwrite the input; choose another folder")
         if dst in seen:
             raise ValueError(f"{src}: same output name as {seen[dst]} in {out_dir}")
@@ -64,28 +68,86 @@ def outputs(inputs: list[Path], out_dir: Path) -> list[Path]:
     return outs
 
 
+def side_name(pattern: str, src: Path, kind: str) -> Path:
+    """A side output's name for ``src``: ``pattern`` with ``{stem}``/``{name}``, or a folder
+    (ending in a separator) holding ``<stem>.qc.html`` (report) / ``<stem>_std.csv`` (std)."""
+    stem = src.name if src.is_dir() else src.stem
+    if "{stem}" in pattern or "{name}" in pattern:
+        return Path(pattern.replace("{stem}", stem).replace("{name}", src.name))
+    return Path(pattern) / (f"{stem}.qc.html" if kind == "report" else f"{stem}_std.csv")
+
+
+def std_csv(seq) -> str:
+    """The error estimate ``meta["std"]`` (T, J) as CSV text: a frame column, one column per
+    marker, NaN where observed."""
+    import io
+
+    import numpy as np
+
+    std = seq.meta["std"]
+    table = np.column_stack([np.arange(std.shape[0]), std])
+    out = io.StringIO()
+    np.savetxt(out, table, delimiter=",", fmt="%.6g", comments="",
+               header=",".join(["frame", *seq.labels]))
+    return out.getvalue()
+
+
+def write_report(seq, filled, path, title: str, rows=None, plan=None) -> None:
+    """The qc HTML report of a fill, through the run's guarded writer ``plan``."""
+    from . import qc
+
+    rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
+                                                      seq.labels, filled.meta.get("std"))
+    html = qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
+                          units=seq.units, names=seq.labels)
+    if plan is None:
+        from .io.outputs import Outputs
+        with Outputs() as plan:
+            plan.write_text(path, html, "report")
+    else:
+        plan.write_text(path, html, "report")
+
+
 def fill_file(job: Job) -> dict:
-    """Read, fill and write one file; a summary row (``error`` set, nothing written, on failure)."""
+    """Read, fill and write one file with its side outputs, all through one guarded writer; a
+    summary row (``error`` set on failure; then nothing of this file is written, or the outputs
+    written before the failing one are listed in ``outputs``)."""
     import torchfill
+    from .io.outputs import Outputs
 
     row = {"file": job.input, "output": job.output, "frames": 0, "markers": 0, "missing": 0,
-           "filled": 0, "seconds": 0.0, "warnings": [], "error": None}
+           "filled": 0, "seconds": 0.0, "warnings": [], "error": None, "outputs": []}
     start = time.perf_counter()
     try:
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, Outputs() as plan:
             warnings.simplefilter("always")
-            seq = torchfill.read(job.input)
+            plan.add_input(job.input, template=True)
+            for path in job.training:
+                plan.add_input(path, "training")
+            plan.add_output(job.output, folder=not Path(job.output).suffix)
+            for path, what in ((job.std, "--std file"), (job.report, "report")):
+                if path:
+                    plan.add_output(path, what)
+            plan.keep_templates()
+            seq = torchfill.read(job.input, **job.read_options)
             row.update(frames=seq.n_frames, markers=seq.n_markers, missing=int(seq.mask.sum()))
             params = dict(job.params)
             if job.training:
                 params["training"] = [torchfill.read(p) for p in job.training]
-            out = torchfill.fill(seq, job.method, max_gap=job.max_gap, **params)
-            Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-            torchfill.write(out, job.output)
+            plan.confirm_inputs()
+            out = torchfill.fill(seq, job.method, max_gap=job.max_gap,
+                                 return_std=bool(job.std), **params)
+            out = out[0] if job.std else out
+            plan.write_sequence(out, job.output)
+            row["outputs"].append(job.output)
+            if job.std:
+                plan.write_text(job.std, std_csv(out), "--std file")
+                row["outputs"].append(job.std)
+            if job.report:
+                write_report(seq, out, job.report, job.input, plan=plan)
+                row["outputs"].append(job.report)
         row["filled"] = row["missing"] - int(out.mask.sum())
-        row["warnings"] = [str(w.message) for w in caught
-                           if not issubclass(w.category, (DeprecationWarning,
-                                                          PendingDeprecationWarning))]
+        row["warnings"] = _texts(caught)
     except Exception as err:  # reported per file; the batch goes on
         text = " ".join(str(err).split()) or type(err).__name__
         if not isinstance(err, (ValueError, OSError, KeyError)):
@@ -95,19 +157,192 @@ def fill_file(job: Job) -> dict:
     return row
 
 
+def _texts(caught) -> list[str]:
+    """Each warning's text once, in order (deprecations left out)."""
+    return list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
+                              if not issubclass(w.category, (DeprecationWarning,
+                                                             PendingDeprecationWarning))))
+
+
 def run(jobs: list[Job], workers: int = 1, ray_address: str | None = None) -> Iterator[dict]:
-    """Fill every job; yields the rows as files finish (in any order)."""
+    """Fill every job; yields the rows as files finish (in any order).
+
+    With ``workers > 1`` the files go to that many worker processes (fresh interpreters, one
+    thread each). A worker that dies (SIGKILL, as the out-of-memory killer sends) costs only its
+    file: the file is tried once more in a new worker, then reported failed, and the batch goes on.
+    Closing the generator (or an exception in it: Ctrl-C) stops at once: queued files are not
+    started, running ones get SIGTERM (their writes finish or roll back), and no worker is left.
+    """
     if ray_address is not None:
         yield from _run_ray(jobs, ray_address)
     elif workers <= 1 or len(jobs) <= 1:
         yield from map(fill_file, jobs)
-    else:  # fresh interpreters (a process using torch must not fork), one thread each
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
-            with _one_thread():   # workers start at submit and read the variables then
-                futures = [pool.submit(fill_file, job) for job in jobs]
-            for done in as_completed(futures):
-                yield done.result()
+    else:
+        yield from _run_processes(jobs, min(workers, len(jobs)))
+
+
+#: seconds a stopped worker gets to finish a write before it is killed
+STOP_GRACE = 1.5
+
+
+def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
+    from collections import deque
+    from multiprocessing.connection import wait
+
+    ctx = multiprocessing.get_context("spawn")
+    queue = deque((job, 1) for job in jobs)
+    idle: list[tuple] = []
+    busy: dict[int, tuple] = {}                     # pid -> (process, conn, job, attempt)
+
+    def start():
+        parent, child = ctx.Pipe()
+        with _one_thread(), _no_sigint():           # a terminal's ^C is for this process only
+            proc = ctx.Process(target=_worker, args=(child,), daemon=True)
+            proc.start()
+        child.close()
+        return proc, parent
+
+    def died(proc, job, attempt):
+        proc.join()
+        how = _death(proc.exitcode)
+        for path in (job.output, job.report, job.std):
+            if path:
+                sweep(path)
+        if attempt < 2:
+            queue.appendleft((job, attempt + 1))
+            return None
+        return {"file": job.input, "output": job.output, "frames": 0, "markers": 0,
+                "missing": 0, "filled": 0, "seconds": 0.0, "warnings": [], "outputs": [],
+                "error": f"{job.input}: the worker process died ({how}) on both tries; not filled"}
+
+    from .io.outputs import sweep
+    first_death: dict[str, str] = {}
+    try:
+        idle.extend(start() for _ in range(n))
+        while queue or busy:
+            while queue and idle:
+                proc, conn = idle.pop()
+                job, attempt = queue.popleft()
+                try:
+                    conn.send(job)
+                except OSError:                     # died while idle: replace it
+                    proc.join()
+                    queue.appendleft((job, attempt))
+                    idle.append(start())
+                    continue
+                busy[proc.pid] = (proc, conn, job, attempt)
+            handles = [h for proc, conn, *_ in busy.values() for h in (conn, proc.sentinel)]
+            ready = set(wait(handles))
+            for pid in list(busy):
+                proc, conn, job, attempt = busy[pid]
+                if conn not in ready and proc.sentinel not in ready:
+                    continue
+                del busy[pid]
+                try:
+                    row = conn.recv() if conn in ready else None
+                except (EOFError, OSError):
+                    row = None
+                if row is not None:
+                    idle.append((proc, conn))
+                    if job.input in first_death and not row["error"]:
+                        row["warnings"].append(f"the first worker process died "
+                                               f"({first_death[job.input]}); filled on the "
+                                               "second try")
+                    yield row
+                    continue
+                if proc.is_alive():                 # its pipe broke: make sure it is gone
+                    proc.kill()
+                proc.join()
+                conn.close()
+                first_death.setdefault(job.input, _death(proc.exitcode))
+                row = died(proc, job, attempt)
+                if queue and len(idle) + len(busy) < n:
+                    idle.append(start())
+                if row is not None:
+                    yield row
+    finally:
+        _stop([(p, c) for p, c, *_ in busy.values()], idle)
+        for proc, conn, job, attempt in busy.values():
+            for path in (job.output, job.report, job.std):
+                if path:
+                    sweep(path)
+
+
+def _stop(running: list[tuple], idle: list[tuple]) -> None:
+    """End every worker: idle ones are told to leave, running ones get SIGTERM (a write in
+    progress finishes or rolls back), whatever is left after ``STOP_GRACE`` seconds is killed."""
+    for proc, conn in idle:
+        try:
+            conn.send(None)
+        except OSError:
+            pass
+    for proc, conn in running:
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + STOP_GRACE
+    everyone = running + idle
+    for proc, conn in everyone:
+        proc.join(max(0.0, deadline - time.monotonic()))
+    for proc, conn in everyone:
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        conn.close()
+
+
+def _death(code) -> str:
+    if code is None:
+        return "no reply"
+    if code < 0:
+        try:
+            import signal
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"killed by {name}" + (", out of memory?" if name == "SIGKILL" else "")
+    return f"exit status {code}"
+
+
+def _worker(conn) -> None:
+    """A worker process: fill the jobs it is sent until told to stop (None or SIGTERM)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def on_term(signum, frame):
+        raise SystemExit(128 + signum)               # unwinds: temporary files are removed
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        while True:
+            try:
+                job = conn.recv()
+            except (EOFError, OSError):
+                return
+            if job is None:
+                return
+            row = fill_file(job)
+            try:
+                conn.send(row)
+            except OSError:
+                return
+    except SystemExit as stop:        # unwound (temporary files removed): skip the slow teardown
+        os._exit(stop.code if isinstance(stop.code, int) else 1)
+
+
+@contextmanager
+def _no_sigint():
+    """Ignore SIGINT while a worker starts: it inherits that and never sees a terminal's ^C."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 @contextmanager
@@ -162,10 +397,20 @@ def table(rows: list[dict]) -> str:
                                                 f"ok, {len(row['warnings'])} warning(s)")
         lines.append(f"{name[-40:]:<40} {row['frames']:>7} {row['markers']:>7} {row['missing']:>8} "
                      f"{row['filled']:>8} {row['seconds']:>8.2f}  {status}")
+    notes = []
+    for row in rows:
+        name = Path(row["file"]).name
+        if row.get("outputs"):
+            notes.append(f"{name} -> {', '.join(map(str, row['outputs']))}")
+        notes.extend(f"{name}: warning: {text}" for text in row["warnings"])
+        if row["error"]:
+            notes.append(f"{name}: FAILED: {row['error']}")
     failed = sum(1 for row in rows if row["error"])
+    lines.extend(notes)
     lines.append(f"{len(rows) - failed} of {len(rows)} file(s) filled"
                  + (f", {failed} failed" if failed else ""))
     return "\n".join(lines)
 
 
-__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "table"]
+__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "side_name",
+           "std_csv", "table", "write_report"]

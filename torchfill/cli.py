@@ -11,6 +11,7 @@ import ast
 from contextlib import contextmanager
 import json
 import os
+import re
 import signal
 import sys
 import time
@@ -22,6 +23,15 @@ EXIT_ERROR = 2
 
 def main(argv: list[str] | None = None) -> int:
     _install_signal_handlers()
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _Escaping(sys.stdout), _Escaping(sys.stderr)
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout, sys.stderr = saved
+
+
+def _main(argv: list[str] | None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -89,6 +99,44 @@ def _silence_stdout() -> None:
         pass
 
 
+#: characters that can move the cursor, retitle, clear or recolour a terminal, or reorder text:
+#: C0 and C1 controls but tab and newline, DEL, bidirectional overrides and isolates
+_CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+
+
+def escape(text: str) -> str:
+    """``text`` with terminal control characters shown as escapes (``\\x1b``): labels, units and
+    file names come from files and must not drive the terminal that prints them."""
+    return _CONTROL.sub(lambda m: (f"\\x{ord(m[0]):02x}" if ord(m[0]) < 256
+                                   else f"\\u{ord(m[0]):04x}"), text)
+
+
+def _shown(text: str) -> str:
+    """One field of a table as printed: control characters and line breaks escaped."""
+    return escape(str(text)).replace("\n", "\\n").replace("\t", "\\t")
+
+
+class _Escaping:
+    """A text stream that escapes control characters in what it is given (:func:`escape`); a
+    carriage return at the start or end of one write stays (progress lines rewrite themselves)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        body = text.strip("\r")
+        if body != text:
+            head = text[:len(text) - len(text.lstrip("\r"))]
+            tail = text[len(text.rstrip("\r")):] if body else ""
+            text = head + escape(body) + tail
+        else:
+            text = escape(text)
+        return self._stream.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
 def _one_line(err: BaseException) -> str:
     return " ".join(str(err).split()) or type(err).__name__
 
@@ -99,90 +147,321 @@ def _cmd_fill(args) -> int:
 
     if len(args.input) > 1 or args.out_dir or args.ray:
         return _cmd_fill_batch(args)
-    args.input = args.input[0]
-    seq = torchfill.read(args.input, **_pose_options(args))
-    out_path = Path(args.output) if args.output else _default_output(Path(args.input))
-    torchfill.io.check_target(out_path)                 # refuse now, not after the fill
-    params = {"params": _parse_params(args.param)} | _window(args) | _dtype(args) | _segments(args)
-    if args.training:
-        params["training"] = [torchfill.read(path) for path in args.training]
-    method = torchfill.default_method() if args.method is None else args.method
-    n_missing = int(seq.mask.sum())
-    _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
-    with _naming(args.input):
-        filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                constraints=args.constraints, return_std=bool(args.std), **params)
-    filled = filled[0] if args.std else filled
-    _clear_progress(args)
-    torchfill.write(filled, out_path)
-    if args.std:
-        _write_std(filled, Path(args.std))
-    if args.report:
-        _write_report(seq, filled, Path(args.report), str(args.input))
+    src = Path(args.input[0])
+    plan, out_path, backup = _plan_fill(args, src)     # every check before any file is read
+    with plan:
+        method, options = _fill_options(args, src)
+        plan.keep_templates()
+        seq = torchfill.read(src, **_pose_options(args))
+        if args.training:
+            options["training"] = [torchfill.read(path) for path in args.training]
+        plan.confirm_inputs()
+        n_missing = int(seq.mask.sum())
+        _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
+        with _naming(src):
+            filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
+                                    return_std=bool(args.std), **options)
+        filled = filled[0] if args.std else filled
+        _clear_progress(args)
+        plan.write_sequence(filled, out_path, backup=backup)
+        written = [out_path]
+        if args.std:
+            _write_std(filled, Path(args.std), plan)
+            written.append(args.std)
+        if args.report:
+            _write_report(seq, filled, Path(args.report), str(src), plan=plan)
+            written.append(args.report)
     info = filled.meta["fill_info"]
     left = int(filled.mask.sum())
     _say(args, f"filled {n_missing - left} samples in {info['seconds']:.2f} s "
-               f"({info['n_iter']} iterations); {left} left unfilled -> {out_path}")
+               f"({info['n_iter']} iterations); {left} left unfilled -> "
+               + ", ".join(map(str, written))
+               + (f" (original kept as {backup})" if backup else ""))
     return 0
+
+
+def _plan_fill(args, src: Path):
+    """The guarded writer of a single-file fill with every path checked (see io/outputs.py), the
+    output path and the backup path of ``--in-place`` (or None)."""
+    from torchfill.io.outputs import Outputs
+
+    _check_input(src, batch_hint=True)
+    plan = Outputs()
+    try:
+        return (plan, *_plan_paths(args, src, plan))
+    except BaseException:
+        plan.close()
+        raise
+
+
+def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
+    from torchfill.io import FileFormatError
+
+    openpose = src.is_dir()
+    plan.add_input(src, template=True)
+    for path in args.training or ():
+        _check_input(Path(path))
+        plan.add_input(path, "training")
+    backup = None
+    if args.in_place:
+        if args.output:
+            raise FileFormatError(f"{src}: --in-place writes onto the input; leave out -o")
+        if openpose:
+            raise FileFormatError(f"{src}: --in-place writes files, not OpenPose folders; give -o")
+        out = src
+        if not args.no_backup:
+            backup = src.with_name(f"{src.stem}.orig{src.suffix}")
+            if os.path.lexists(backup):
+                raise FileFormatError(f"{backup}: exists (an earlier original?); move it "
+                                      "away, or give --no-backup")
+    else:
+        if args.no_backup:
+            raise FileFormatError(f"{src}: --no-backup goes with --in-place")
+        out = Path(args.output) if args.output else _default_output(src)
+        if args.output and not openpose and (args.output.endswith(("/", os.sep)) or out.is_dir()):
+            raise FileFormatError(f"{out}: is a folder; give a file name (e.g. "
+                                  f"{out / _default_output(src).name}), or --out-dir {out} to "
+                                  "fill several recordings")
+    _check_format(out, openpose)
+    plan.add_output(out, "output", replace_input=args.in_place, folder=openpose,
+                                    hint="give another -o, or --in-place to replace it (the "
+                                         "original is kept as NAME.orig.EXT)")
+    if backup is not None:
+        plan.add_output(backup, "backup")
+    if args.std:
+        _check_suffix(Path(args.std), ".csv", "--std")
+        plan.add_output(args.std, "--std file")
+    if args.report:
+        plan.add_output(args.report, "report")
+    return out, backup
+
+
+def _check_input(path: Path, batch_hint: bool = False) -> None:
+    """One line now if ``path`` cannot be read as a recording: missing, of an unknown type, or a
+    folder of recordings (not an OpenPose folder) without ``--out-dir``."""
+    from torchfill.io import FileFormatError, _pick
+
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such file")
+    if path.is_dir():
+        from torchfill.batch import SUFFIXES
+        from torchfill.io.openpose import PATTERN
+
+        if not any(path.glob(PATTERN)):
+            found = [p for p in path.iterdir() if p.is_file() and p.suffix.lower() in SUFFIXES]
+            if found and batch_hint:
+                raise FileFormatError(f"{path}: a folder of {len(found)} recording(s), not an "
+                                      f"OpenPose folder; fill them all with --out-dir DIR")
+            raise FileFormatError(f"{path}: a folder with no recordings and no OpenPose "
+                                  f"{PATTERN} files")
+        return
+    _pick(path, "read")
+
+
+def _check_format(out: Path, openpose: bool) -> None:
+    """The output's type from its suffix, now (a folder without suffix: OpenPose output)."""
+    from torchfill.io import FileFormatError, _pick
+
+    if not out.suffix and not openpose:
+        raise FileFormatError(f"{out}: no file type; give a suffix (.c3d, .trc, .npy, .npz, "
+                              ".csv)")
+    _pick(out, "write")
+
+
+def _check_suffix(path: Path, suffix: str, option: str) -> None:
+    if path.suffix.lower() != suffix:
+        raise ValueError(f"{path}: {option} writes {suffix}, found {path.suffix or 'no suffix'}")
+
+
+def _fill_options(args, src) -> tuple[str, dict]:
+    """The method and ``fill()`` keywords of the command line, checked before any file is read:
+    method name and ``-p`` names with a "did you mean", values by the method's own checks."""
+    import difflib
+
+    from torchfill._catalog import entries
+
+    src = f"{src}: " if src is not None else ""
+    if args.max_gap is not None and args.max_gap < 0:
+        raise ValueError(f"{src}max_gap expected >= 0, found {args.max_gap}")
+    params = _parse_params(args.param)
+    _extrapolate(args)
+    names = [name for name, _ in entries()]            # read from the sources: no torch yet
+    if args.method is not None and args.method not in names:
+        close = difflib.get_close_matches(args.method, names, n=1)
+        raise ValueError(f"{src}unknown method {args.method!r}"
+                         + (f"; did you mean {close[0]!r}?" if close else "")
+                         + " ('torchfill methods' lists them)")
+    import torchfill
+    from torchfill.solvers import base
+
+    names = torchfill.methods()
+    method = torchfill.default_method() if args.method is None else args.method
+    if method not in names:
+        raise ValueError(f"{src}unknown method {method!r} ('torchfill methods' lists them)")
+    cls = base._REGISTRY[method]
+    declared = [*cls.declared_params(), *cls._merged("renamed")]
+    for key in params:
+        if key in _FILL_OPTIONS:
+            raise ValueError(f"{src}-p {key}: a fill option, give it as --{key.replace('_', '-')}")
+        if key not in declared:
+            close = difflib.get_close_matches(key, declared, n=1)
+            raise ValueError(f"{src}{method} has no hyperparameter {key!r}"
+                             + (f"; did you mean {close[0]!r}?" if close else "")
+                             + f" ('torchfill methods -v' lists them)")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            base.get_solver(method, **params)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{src}{_one_line(err)}") from None
+    if args.training and "training" not in cls.fit_data:
+        takes = [m for m in names if "training" in base._REGISTRY[m].fit_data]
+        raise ValueError(f"{src}{method} takes no training data; methods that do: "
+                         f"{', '.join(takes)}")
+    options = ({"params": params} | _window(args) | _dtype(args) | _extrapolate(args)
+               | _segments(args))
+    options["constraints"] = args.constraints
+    return method, options
+
+
+#: ``fill()`` keywords that have their own command-line option
+_FILL_OPTIONS = ("mask", "max_gap", "window", "constraints", "extrapolate", "return_std", "dtype",
+                 "workers", "progress", "training")
+
+
+def _extrapolate(args) -> dict:
+    """``fill()``'s ``extrapolate`` from ``--extrapolate`` (seconds, or ``none``: no limit)."""
+    value = getattr(args, "extrapolate", None)
+    if value is None:
+        return {}
+    if value.strip().lower() in ("none", "off", "inf"):
+        return {"extrapolate": None}
+    try:
+        seconds = float(value)
+    except ValueError:
+        seconds = -1.0
+    if not seconds >= 0:
+        raise ValueError(f"--extrapolate expected seconds >= 0 or 'none', found {value!r}")
+    return {"extrapolate": seconds}
 
 
 def _cmd_qc(args) -> int:
     import torchfill
     from torchfill import qc
+    from torchfill.io.outputs import Outputs
 
-    seq, filled = torchfill.read(args.input), torchfill.read(args.filled)
-    if filled.points.shape != seq.points.shape:
-        raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
-                         f"{args.input}'s {seq.points.shape}")
-    rows = qc.gap_table(seq.points, filled.points, seq.rate, seq.labels)
-    print(qc.format_table(rows, seq.units))
     report = Path(args.output) if args.output else Path(args.filled).with_suffix(".qc.html")
-    _write_report(seq, filled, report, str(args.filled), rows)
+    with Outputs() as plan:
+        for path in (args.input, args.filled):
+            _check_input(Path(path))
+            plan.add_input(path)
+        plan.add_output(report, "qc report", hint="give another -o")
+        seq, filled = torchfill.read(args.input), torchfill.read(args.filled)
+        if filled.points.shape != seq.points.shape:
+            raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
+                             f"{args.input}'s {seq.points.shape}")
+        rows = qc.gap_table(seq.points, filled.points, seq.rate, seq.labels)
+        print(qc.format_table(rows, seq.units))
+        _write_report(seq, filled, report, str(args.filled), rows, plan=plan)
     n_check = sum(r["verdict"] != "ok" for r in rows)
     _say(args, f"{len(rows)} gaps, {n_check} to check -> {report}")
     return 0
 
 
-def _write_report(seq, filled, path: Path, title: str, rows=None) -> None:
-    from torchfill import qc
+def _write_report(seq, filled, path: Path, title: str, rows=None, plan=None) -> None:
+    from torchfill import batch
 
-    rows = rows if rows is not None else qc.gap_table(seq.points, filled.points, seq.rate,
-                                                      seq.labels, filled.meta.get("std"))
-    path.write_text(qc.html_report(seq.points, filled.points, rows, title=title, rate=seq.rate,
-                                   units=seq.units, names=seq.labels), encoding="utf-8")
+    batch.write_report(seq, filled, path, title, rows, plan)
 
 
 def _cmd_fill_batch(args) -> int:
-    """Many files: one progress bar, one line per failing file, a summary table at the end."""
+    """Many files: one progress bar, one line per failing file, a summary table at the end.
+    Ctrl-C (or SIGTERM) stops at once: queued files are not started, running ones are stopped
+    with nothing partial written, exit status 130."""
+    from contextlib import closing
+
     from tqdm import tqdm
 
     from torchfill import batch
+    from torchfill.io.outputs import Outputs, make_folder
 
     if args.output:
         raise ValueError("-o/--output names one file; give --out-dir DIR for several inputs")
     if not args.out_dir:
         raise ValueError("several inputs need --out-dir DIR")
+    if args.in_place or args.no_backup:
+        raise ValueError("--in-place fills one file; give --out-dir DIR for several inputs")
     if args.workers < 1:
         raise ValueError(f"--workers expected >= 1, found {args.workers}")
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    params = {"params": _parse_params(args.param)} | _window(args) | _dtype(args) | _segments(args)
-    if not args.constraints:
-        params["constraints"] = False
-    jobs = [batch.Job(str(src), str(dst), args.method, params, args.max_gap, tuple(args.training or ()))
-            for src, dst in zip(inputs, batch.outputs(inputs, Path(args.out_dir)))]
+    method, options = _fill_options(args, None)
+    out_dir = make_folder(args.out_dir)
+    side = {"report": _side_folder(args.report, "--report"), "std": _side_folder(args.std, "--std")}
+    jobs = []
+    with Outputs() as plan:                           # the whole batch checked before any work
+        for path in args.training or ():
+            _check_input(Path(path))
+            plan.add_input(path, "training")
+        for src in inputs:
+            plan.add_input(src)
+        for src, dst in zip(inputs, batch.outputs(inputs, out_dir)):
+            if not src.is_dir():
+                _check_format(dst, False)
+            plan.add_output(dst, "output", folder=src.is_dir(), hint="choose another --out-dir")
+            report, std = (batch.side_name(side[k], src, k) if side[k] else None
+                           for k in ("report", "std"))
+            for path, what in ((report, "report"), (std, "--std file")):
+                if path is not None:
+                    plan.add_output(path, what)
+            jobs.append(batch.Job(str(src), str(dst), method, options, args.max_gap,
+                                  tuple(args.training or ()), report=report and str(report),
+                                  std=std and str(std), read_options=_pose_options(args, src)))
     order = {job.input: i for i, job in enumerate(jobs)}
     rows = []
-    with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar:
-        for row in batch.run(jobs, workers=args.workers, ray_address=args.ray):
-            if row["error"]:
-                bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
-            rows.append(row)
-            bar.update()
+    started = time.time()
+    try:
+        with tqdm(total=len(jobs), unit="file", file=sys.stderr, disable=args.quiet or None) as bar, \
+                closing(batch.run(jobs, workers=args.workers, ray_address=args.ray)) as results:
+            for row in results:
+                if row["error"]:
+                    bar.write(f"torchfill: error: {row['error']}", file=sys.stderr)
+                rows.append(row)
+                bar.update()
+    except (KeyboardInterrupt, SystemExit) as stop:     # the workers are gone by now
+        done = sum(1 for job in jobs if _written_since(job.output, started))
+        failed = sum(1 for row in rows if row["error"])
+        print(f"torchfill: interrupted: {done} of {len(jobs)} file(s) filled, {failed} failed, "
+              f"{len(jobs) - done - failed} stopped or not started (nothing partial written)",
+              file=sys.stderr)
+        return 130 if isinstance(stop, KeyboardInterrupt) else (stop.code or 130)
     rows.sort(key=lambda row: order[row["file"]])
     _say(args, batch.table(rows))
     return EXIT_ERROR if any(row["error"] for row in rows) else 0
+
+
+def _written_since(path: str, start: float) -> bool:
+    try:
+        return os.stat(path).st_mtime >= start - 1.0
+    except OSError:
+        return False
+
+
+def _side_folder(value: str | None, option: str) -> str | None:
+    """``--report`` / ``--std`` in a batch: a folder (created) or a name with ``{stem}``."""
+    from torchfill.io.outputs import make_folder
+
+    if value is None:
+        return None
+    if "{stem}" in value or "{name}" in value:
+        make_folder(Path(value).parent if str(Path(value).parent) else Path("."))
+        return value
+    if value.endswith(("/", os.sep)) or Path(value).is_dir() or not Path(value).suffix:
+        make_folder(value)
+        return str(Path(value)) + os.sep
+    raise ValueError(f"{value}: with several inputs {option} takes a folder or a name with "
+                     "{stem} (e.g. reports/{stem}.qc.html)")
 
 
 def _cmd_evaluate(args) -> int:
@@ -258,8 +537,9 @@ def _cmd_info(args) -> int:
     runs = [(j, a, b) for j, a, b in gap_runs(seq.mask) if not never[j]]   # gaps of seen markers
     inner = [b - a for _, a, b in runs if a > 0 and b < T]
     seen = seq.mask[:, ~never]
+    labels = [_shown(label) for label in seq.labels]     # a newline in a label stays visible too
     print(seq)
-    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {seq.units}, "
+    print(f"frames {T}, markers {seq.n_markers}, rate {seq.rate:g} Hz, units {_shown(seq.units)}, "
           f"{len(runs)} gaps, longest {max((b - a for _, a, b in runs), default=0)} frames")
     print(f"  {len(inner)} interior gap(s) (longest {max(inner, default=0)} frames), "
           f"{len(runs) - len(inner)} at the trial ends; "
@@ -267,14 +547,15 @@ def _cmd_info(args) -> int:
           f"{int(seq.mask.all(axis=1).sum())} frame(s) with no marker seen")
     if never.any():
         print(f"  {int(never.sum())} marker(s) never observed: "
-              f"{', '.join(seq.labels[j] for j in range(seq.n_markers) if never[j])}")
+              f"{', '.join(labels[j] for j in range(seq.n_markers) if never[j])}")
     dups = seq.duplicates()
     if dups:
-        print("  duplicate labels: " + ", ".join(f"{label} (markers {', '.join(map(str, idx))})"
+        print("  duplicate labels: " + ", ".join(f"{_shown(label)} "
+                                                 f"(markers {', '.join(map(str, idx))})"
                                                  for label, idx in dups.items()))
-    width = max((len(label) for label in seq.labels), default=6)
+    width = max((len(label) for label in labels), default=6)
     print(f"{'marker':<{width}}  {'missing':>8}  {'gaps':>5}  {'longest':>7}")
-    for j, label in enumerate(seq.labels):
+    for j, label in enumerate(labels):
         own = [b - a for k, a, b in runs if k == j]
         if own or never[j] or args.all_markers:
             print(f"{label:<{width}}  {int(seq.mask[:, j].sum()):>8}  {len(own):>5}  "
@@ -328,14 +609,11 @@ def _naming(path):
         raise ValueError(f"{path}: {_one_line(err)}") from None
 
 
-def _write_std(seq, path: Path) -> None:
+def _write_std(seq, path: Path, plan) -> None:
     """The error estimate (T, J) as CSV: a frame column, one column per marker, NaN where observed."""
-    import numpy as np
+    from torchfill import batch
 
-    std = seq.meta["std"]
-    table = np.column_stack([np.arange(std.shape[0]), std])
-    np.savetxt(path, table, delimiter=",", fmt="%.6g", comments="",
-               header=",".join(["frame", *seq.labels]))
+    plan.write_text(path, batch.std_csv(seq), "--std file")
 
 
 def _default_output(path: Path) -> Path:
@@ -356,13 +634,15 @@ def _window(args) -> dict:
     return {"window": args.window or None}
 
 
-def _pose_options(args) -> dict:
+def _pose_options(args, path=None) -> dict:
     """Reader options of OpenPose folders (``--min-confidence``); an error for other inputs."""
     value = getattr(args, "min_confidence", None)
     if value is None:
         return {}
-    if not Path(args.input).is_dir():
-        raise ValueError(f"{args.input}: --min-confidence applies to OpenPose folders only")
+    path = path if path is not None else args.input
+    path = path[0] if isinstance(path, list) else path
+    if not Path(path).is_dir():
+        raise ValueError(f"{path}: --min-confidence applies to OpenPose folders only")
     return {"min_confidence": value}
 
 
@@ -461,7 +741,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
-    p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill")
+    p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill "
+                   "(several inputs: a folder, or a name with {stem})")
     p.add_argument("--no-constraints", dest="constraints", action="store_false",
                    help="the method's own fill, as in its paper (no rigid donors, edge blending, "
                         "step limit, volume clamp or extrapolation limit)")
@@ -470,6 +751,14 @@ def _parser() -> argparse.ArgumentParser:
                         "tucker_tnn); observed samples are written as read either way")
     p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
                    "sample (frames x markers, data units, NaN where observed)")
+    p.add_argument("--extrapolate", metavar="SECONDS",
+                   help="seconds a gap at a trial end may be extrapolated in time, in frames "
+                        "too empty for a spatial fill (default 0.25); 'none': fill every sample, "
+                        "also those whose estimated error is above 30 mm (left empty by default)")
+    p.add_argument("--in-place", action="store_true",
+                   help="write the fill onto IN itself (keeps the original as NAME.orig.EXT unless "
+                        "--no-backup)")
+    p.add_argument("--no-backup", action="store_true", help="with --in-place: keep no .orig copy")
     p.add_argument("--segments", metavar="FILE",
                    help="which markers move together: a YAML file as 'torchfill info IN "
                         "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "

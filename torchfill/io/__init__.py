@@ -29,17 +29,22 @@ def read(path, **kwargs) -> MarkerSequence:
 
 
 def write(seq: MarkerSequence, path, **kwargs) -> Path:
-    """Write ``seq`` to ``path`` atomically (temporary file, then rename); returns the path.
+    """Write ``seq`` to ``path`` atomically (through :class:`torchfill.io.outputs.Outputs`: a
+    temporary file beside it, synced, then renamed; a symbolic link there is replaced, not
+    followed); returns the path.
 
     ``seq`` may also be an array of shape ``(T, J, 3)`` (labels M1..MJ, 100 Hz, mm). A C3D or TRC
     written from a sequence read from a file of the same kind keeps that file and changes only the
     filled samples (see :mod:`torchfill.io.c3d`, :mod:`torchfill.io.trc`).
     """
+    from .outputs import Outputs
+
     path = Path(path)
-    writer = _pick(path, "write")
+    _pick(path, "write")
     if not isinstance(seq, MarkerSequence):
         seq = _wrap(seq, path)
-    writer(seq, path, **kwargs)
+    with Outputs() as out:
+        out.write_sequence(seq, path, **kwargs)
     return path
 
 

@@ -165,6 +165,7 @@ def load_config(path) -> Config:
     for key in ("recordings", "protocol", "methods"):
         if key not in raw:
             raise bad(f"missing required key {key!r}")
+    name = _name(raw.get("name"), path, bad)
     env = os.environ.get("TORCHFILL_DATA")
     data_dir = Path(env).resolve() if env else Path(raw.get("data_dir") or
                                                     path.parent / "../../shared/data").resolve()
@@ -196,7 +197,7 @@ def load_config(path) -> Config:
         if own not in (None, SELF):
             _check_files(data_dir, _str_list(own, f"methods.{m.label}.training", bad),
                          f"methods.{m.label}: training recording", bad)
-    return Config(path=path, name=str(raw.get("name") or path.stem), data_dir=data_dir,
+    return Config(path=path, name=name, data_dir=data_dir,
                   results_dir=results_dir, recordings=recordings, protocol=protocol, grid=grid,
                   seeds=seeds, methods=methods, metrics=metric_names, table=table,
                   training=training, frames=frames, segments=segments, references=references,
@@ -285,6 +286,19 @@ def _references(value, table: dict, bad) -> dict[str, list[dict]]:
         out[str(label)] = [{k: str(v) if k in table["rows"] else float(v) for k, v in e.items()}
                            for e in entries]
     return out
+
+
+def _name(value, path: Path, bad) -> str:
+    """The experiment's name: one plain folder name (results go to ``<results_dir>/<name>``, and
+    nowhere else: no separators, no ``..``, no control characters)."""
+    name = path.stem if value is None or value == "" else value
+    if isinstance(name, (int, float)) and not isinstance(name, bool):
+        name = str(name)
+    if not isinstance(name, str) or name in (".", "..") or name != name.strip() \
+            or any(c in name for c in "/\\") or any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise bad(f"name expected a plain folder name (no '/', '\\', '..' or control characters), "
+                  f"found {value!r}")
+    return name
 
 
 def _check_files(data_dir: Path, names: list[str], what: str, bad) -> None:

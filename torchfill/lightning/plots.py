@@ -75,7 +75,7 @@ def _error_by(cfg, rows, out_dir, runs_dir, order, metric):
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     path = out_dir / f"error_by_{x}.png"
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
 
@@ -139,7 +139,7 @@ def _convergence(cfg, rows, out_dir, runs_dir, order, metric):
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     path = out_dir / "convergence.png"
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
 
@@ -183,6 +183,14 @@ def _trajectories(cfg, rows, out_dir, runs_dir, order, metric, n_markers: int = 
     axes[-1, 0].set_xlabel("time (s); gaps shaded")
     fig.tight_layout()
     path = out_dir / "trajectories.png"
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
+
+
+def _save(fig, path: Path) -> None:
+    """``fig`` as ``path``, atomically, through the guarded writer (a symlink there is replaced)."""
+    from ..io.outputs import Outputs
+
+    with Outputs() as out:
+        out.write(path, lambda tmp: fig.savefig(tmp, dpi=90), "plot")

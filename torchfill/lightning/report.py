@@ -192,4 +192,7 @@ def write_report(cfg: Config, rows: list[dict], out_dir: Path, runs_dir: Path, *
     images = plots.write_plots(cfg, rows, out_dir, runs_dir, order=order, metric=main)
     if images:
         parts += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in images] + [""]
-    (out_dir / "table.md").write_text("\n".join(parts))
+    from ..io.outputs import Outputs
+
+    with Outputs() as out:
+        out.write_text(out_dir / "table.md", "\n".join(parts), "result file")

@@ -6,7 +6,6 @@ that ``report`` and ``plots`` both import from here and not from each other.
 from __future__ import annotations
 
 import csv
-import os
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -99,9 +98,12 @@ def read_header(path: Path) -> list[str] | None:
 
 def rewrite(path: Path, header: list[str], rows: list[dict]) -> None:
     """Write ``rows`` under ``header`` atomically (missing cells empty)."""
-    tmp = Path(path).with_suffix(".tmp")
-    with open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=header, restval="", extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+    from ..io.outputs import Outputs
+
+    def serialise(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=header, restval="", extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+    with Outputs() as out:
+        out.write(path, serialise, "result file")

@@ -229,11 +229,12 @@ def plan(config_path, *, resume: bool = False, limit: int | None = None, output=
     for m in cfg.skipped:
         print(f"{cfg.name}: method {m!r} is not registered; skipped", flush=True)
     if output is not None:
-        out_dir = Path(output).resolve()
+        out_dir = Path(os.path.abspath(output))
         runs_dir = out_dir / "runs"
     else:
         out_dir = cfg.results_dir / cfg.name
         runs_dir = cfg.results_dir.parent / "runs" / cfg.name
+    _guard_results(cfg, out_dir)
     notes = _check_recordings(cfg)
     cases = cfg.cases()
     if limit is not None:
@@ -354,6 +355,34 @@ def run_experiment(config_path, *, resume: bool = False, workers: int = 1, limit
     else:
         execute(p, workers=workers, ray_address=ray_address)
     return report(p, workers=workers)
+
+
+def _guard_results(cfg: Config, out_dir: Path) -> None:
+    """One line now if the results folder cannot be used, or a result file (cases.csv, table.md)
+    would land on a recording or training file of the config (the guarded writer's checks)."""
+    from ..io import FileFormatError
+    from ..io.outputs import Outputs
+
+    try:
+        with Outputs() as guard:
+            names = set(cfg.recordings) | set(cfg.training)
+            for m in cfg.methods:
+                own = m.params.get("training")
+                if own not in (None, SELF):
+                    names.update([own] if isinstance(own, str) else own)
+            for name in sorted(names):
+                guard.add_input(cfg.recording_path(name), "recording")
+            folder = out_dir
+            while not folder.exists() and not folder.is_symlink() and folder != folder.parent:
+                folder = folder.parent               # the results folder is created later
+            if folder == out_dir:
+                for name in ("cases.csv", "table.md"):
+                    guard.add_output(out_dir / name, "result file")
+            else:
+                guard.add_output(folder / out_dir.relative_to(folder).parts[0], "results folder",
+                                 folder=True)
+    except FileFormatError as err:
+        raise ValueError(f"{cfg.path.name}: {err}") from None
 
 
 def _check_recordings(cfg: Config) -> list[str]:
