@@ -81,7 +81,8 @@ _SIDED = {
               "#shank1", "#shank2", "#shank3", "#shank4", "#sk1", "#sk2", "#sk3", "#sk4",
               "#tb1", "#tb2", "#tb3", "#sh1", "#sh2", "#sh3", "#sh4",
               "#shankupper", "#shankfront", "#shankrear",
-              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm", "#knee"],
+              "#bar2", "#tubtib", "#posttib", "#anttib", "#ankle", "#fal", "#tam", "#ankm",
+              "#knee"],
     "foot": ["#ank", "#hee", "#toe", "#mt5", "#fmh", "#vmh", "#heel", "#mt1", "#met", "#met1",
              "#cal", "#toetip", "#midfootsup", "#midfootlat", "#toelat", "#toemed",
              "#fcc", "#fm1", "#fm2", "#fm5", "#ft1", "#ft2", "#ft3", "#mal", "#mall"],
@@ -124,7 +125,8 @@ for _seg, _names in TABLE.items():
 
 def normalize(label: str) -> tuple[str, str]:
     """``(prefix, name)`` of a label: the subject prefix before the last ``:`` and the marker
-    name in lower case without ``.``, ``_``, ``-`` or blanks (``"Reed:L.ASI" -> ("Reed", "lasi")``)."""
+    name in lower case without ``.``, ``_``, ``-`` or blanks
+    (``"Reed:L.ASI" -> ("Reed", "lasi")``)."""
     prefix, _, name = str(label).rpartition(":")
     return prefix, re.sub(r"[\s._\-]+", "", name).lower()
 

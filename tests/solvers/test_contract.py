@@ -268,7 +268,8 @@ def test_fill_never_swallows_a_hyperparameter(method):
     """A name that is both ``fill()``'s argument and the method's hyperparameter is an error
     unless ``params`` says which is meant; a hyperparameter as a keyword argument warns."""
     declared = type(get_solver(method)).declared_params()
-    for name in sorted(set(declared) & FILL_ARGS - {"constraints", "training", "segments"}):  # passed on
+    passed_on = {"constraints", "training", "segments"}          # fill() passes these on
+    for name in sorted(set(declared) & FILL_ARGS - passed_on):
         value = declared[name].default
         with pytest.raises(ValueError, match=f"{name} is both"):
             torchfill.fill(GAPPY, method=method, **{name: value})
