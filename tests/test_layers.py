@@ -14,7 +14,7 @@ LAYERS = [
     {"solvers"},
     {"windows", "constraints", "qc"},
     {"filling", "batch", "progress"},
-    {"lightning", "cli", "__main__", "__init__", "_case"},
+    {"lightning", "cli", "__main__", "__init__"},
 ]
 
 
