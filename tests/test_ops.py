@@ -253,8 +253,9 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
     def work(k):
         time.sleep(0.01 * (5 - k))                       # the later items finish first
         seen.append((threading.current_thread().name, torch.get_num_threads()))
-        inner = list(thread_map(lambda x: threading.current_thread().name, [0, 1]))
-        assert len(set(inner)) == 1                       # nested: serial, in this thread
+        if threading.current_thread().name.startswith("torchfill"):
+            inner = list(thread_map(lambda x: threading.current_thread().name, [0, 1]))
+            assert set(inner) == {threading.current_thread().name}   # nested: serial, here
         return k * k
 
     with _threads(4):
@@ -266,7 +267,8 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
         t.start(), t.join()
         assert fresh == [4]                               # nor for threads started later
         assert len({name for name, _ in seen}) == 2
-        assert list(thread_map(work, range(3), workers=1)) == [0, 1, 4]    # serial: all threads
+        assert list(thread_map(work, range(3), workers=1)) == [0, 1, 4]    # serial: all threads; a nested call
+        # in this thread may still use workers (a one-window fill keeps its candidates side by side)
         assert seen[-1] == (threading.current_thread().name, 4)
 
 
