@@ -405,3 +405,23 @@ def test_write_back_of_a_marker_subset(recording, tmp_path):
                                           ("", "mm"), ("meters", "m"), ("in", "in")])
 def test_units_normalized(stored, units):
     assert tc3d.normalize_units(stored) == units
+
+
+def test_signalling_nan_in_a_float_file_is_missing_without_a_warning(tmp_path):
+    """A data word holding a signalling NaN (a corrupt or hand-edited file) reads as a missing
+    sample; casting it raised numpy's 'invalid value' warning on the user's terminal."""
+    seq = synthetic(gaps=False)
+    path = tmp_path / "snan.c3d"
+    torchfill.write(seq, path)
+    raw = bytearray(path.read_bytes())
+    word = struct.pack("<f", np.float32(seq.points[3, 1, 0]))
+    assert raw.count(word) == 1
+    at = raw.index(word)
+    raw[at:at + 4] = struct.pack("<I", 0x7FA00000)                      # a signalling NaN
+    path.write_bytes(bytes(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = torchfill.read(path)
+    assert back.mask[3, 1] and back.mask.sum() == 1
+    np.testing.assert_array_equal(back.points[~back.mask],
+                                  seq.points[~back.mask].astype(np.float32).astype(np.float64))

@@ -379,8 +379,9 @@ def _raw_points(buf: bytes, lay: Layout) -> RawPoints:
     T, P = lay.n_frames, lay.n_points
     block = frame_words(buf, lay)[:, :4 * P].reshape(T, P, 4)
     if lay.is_float:
-        values = (_decode_real(block.reshape(-1), "dec") if lay.processor == "dec"
-                  else block.reshape(-1).astype(np.float64)).reshape(T, P, 4)
+        with np.errstate(invalid="ignore"):       # a signalling NaN in the file is just missing
+            values = (_decode_real(block.reshape(-1), "dec") if lay.processor == "dec"
+                      else block.reshape(-1).astype(np.float64)).reshape(T, P, 4)
         xyz, word = values[..., :3], values[..., 3]
     else:
         xyz = block[..., :3].astype(np.float64) * lay.scale
