@@ -26,11 +26,14 @@ CASES = [   # config, method label, what fill() gets besides PAPER
     ("smoke.yaml", "svt", {}),
     ("pca_tables.yaml", "pca_train", {"training": "config"}),     # other recordings, by label
     ("pca_tables.yaml", "pca_train_self", {"training": "rest"}),   # the rest of the recording
-    ("constraints_cp.yaml", "cp+c", {"constraints": True}),        # fill()'s post-step
+    pytest.param("constraints_cp.yaml", "cp+c", {"constraints": True},   # fill()'s post-step
+                 marks=pytest.mark.slow),                                # two cp fits: ~15 s
 ]
 
 
-@pytest.mark.parametrize("config, label, extra", CASES, ids=[f"{c}-{m}" for c, m, _ in CASES])
+@pytest.mark.parametrize("config, label, extra", CASES,
+                         ids=["smoke-svt", "pca_tables-pca_train", "pca_tables-pca_train_self",
+                              "constraints_cp-cp+c"])
 def test_runner_and_fill_agree_bit_for_bit(config, label, extra, data_dir, recording, tmp_path,
                                            monkeypatch):
     monkeypatch.setenv("TORCHFILL_DATA", str(data_dir))
