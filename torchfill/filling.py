@@ -7,6 +7,7 @@ import threading
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -175,6 +176,70 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         raise ValueError(f"workers expected an int >= 1 or None, found {workers!r}")
     if not (progress is None or isinstance(progress, bool) or callable(progress)):
         raise ValueError(f"progress expected True, False or a callable, found {progress!r}")
+    return fill_case(data, method, params, training=training, mask=mask, max_gap=max_gap,
+                     window=window, progress=progress, constraints=constraints,
+                     extrapolate=extrapolate, return_std=return_std, dtype=dtype, workers=workers,
+                     segments=segments, reject=reject)
+
+
+def fill_case(data, method: str, params: dict, *, training=None, mask=None,
+              max_gap: int | None = None, window: int | None = windows.WINDOW,
+              progress: bool | Callable[[dict], None] | None = False, constraints: bool = True,
+              extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
+              workers: int | None = None, segments=None, reject: float | None = None,
+              solve: Callable | None = None):
+    """Fill one recording ``(T, J, D)``: prepare -> solve -> finish.
+
+    The one path of a fill: :func:`fill` calls it once it has checked its arguments (and split a
+    batch, widened half precision, set earlier fills aside), and the experiment runner
+    (:mod:`torchfill.lightning.runner`) calls it for every case, so that an experiment scores what
+    ``fill()`` returns; the papers' protocols are arguments (``constraints=False``,
+    ``extrapolate=None``, ``window=None``, ``dtype``). Arguments and result as :func:`fill`'s;
+    ``params``: the method's hyperparameters (a dict; not changed); and
+
+    solve : callable, optional
+        ``solve(solver, X, missing, data, callback, part)`` fits ``solver`` to one window ``X``
+        (NaN where ``missing``; ``data``: its fit data such as ``training``; ``callback``: takes
+        each iteration's record; ``part``: ``(frames, markers)``, the window's frame slice and
+        marker indices in ``data``) as ``solver.fit`` does -- the default; the runner drives the
+        same solver under a Lightning Trainer, one ``step()`` per training step.
+    """
+    case = _prepare(data, method, dict(params), training, mask, dtype, segments, constraints,
+                    max_gap is not None)
+    if bool(case.todo.any()):
+        _solve(case, window, workers, progress, constraints, return_std, solve or _fit)
+    return _finish(case, constraints, extrapolate, reject, max_gap, return_std)
+
+
+@dataclass
+class _Case:
+    """A recording on its way through :func:`fill_case` (tensors ``(T, J, D)`` / ``(T, J)``)."""
+
+    data: object                     # what the caller gave (labels, rate, units, kind)
+    kind: str                        # "sequence", "array" or "tensor"
+    method: str
+    params: dict                     # the method's hyperparameters (with segments, carry)
+    solver: object                   # a solver of ``method`` (validated; its class attributes)
+    work: torch.dtype | None         # the dtype the method computes in (None: the data's)
+    points: torch.Tensor | None      # the input (dropped once the windows are cut)
+    out: torch.Tensor                # the result being built: the input, NaN at ``mask``
+    given: torch.Tensor | None       # the input's own coordinates (for ``max_gap``)
+    own: torch.Tensor                # coordinates the input had: never changed
+    missing: torch.Tensor            # samples to fill (NaN or ``mask``)
+    unfit: torch.Tensor              # samples the solver does not see (missing or corrupt)
+    never: torch.Tensor              # markers never observed (J,)
+    todo: torch.Tensor               # missing samples of markers observed somewhere
+    training: object
+    seg_idx: dict | None             # segments as marker indices (None: not needed)
+    info: dict
+    std: torch.Tensor
+    shown: object = None             # the progress display, while solving
+
+
+def _prepare(data, method, params, training, mask, dtype, segments, constraints,
+             keep_given: bool) -> _Case:
+    """Validate the method and data, and find what is missing, what the solver may see and the
+    segments."""
     solver = get_solver(method, **params)                           # validate early
     work = _work_dtype(dtype, solver)
     if training is not None and "training" not in solver.fit_data:
@@ -190,86 +255,100 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
     out = points.clone()
     if mask is not None:
         out[mask] = float("nan")
-    given = out.clone() if max_gap is not None else None   # the input's own finite coordinates
-    own = torch.isfinite(out)
     unfit = missing | _huge(points, missing)     # what the solver does not see
     never = unfit.all(dim=0)
     if bool(never.any()):
-        names = _marker_names(data, never)
-        warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: {names}",
-                      UnfilledWarning, stacklevel=2)
+        warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: "
+                      f"{_marker_names(data, never)}", UnfilledWarning, stacklevel=4)
     todo = missing & ~never
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0,
             "dtype": str(work or points.dtype).removeprefix("torch.")}
-    std = torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device)
     seg_idx = None
     if bool(todo.any()) and points.shape[2] == 3 and (
             constraints or segments is not None or "segments" in solver.declared_params()):
         seg_idx = _segment_indices(segments, data, points, unfit)
-    if bool(todo.any()):
-        keep = torch.nonzero(~never).flatten()
-        kept_segments = None
-        if seg_idx is not None:
-            at = {int(j): i for i, j in enumerate(keep.tolist())}
-            kept_segments = {s: [at[j] for j in m if j in at] for s, m in seg_idx.items()}
-        if kept_segments is not None and "segments" in solver.declared_params():
-            params["segments"] = kept_segments
-        if kept_segments is not None and "candidate_params" in solver.declared_params():
-            given = dict(params.get("candidate_params") or {})      # auto's rigid candidate
-            given["rigid"] = {"segments": kept_segments, **given.get("rigid", {})}
-            params["candidate_params"] = given
-        extra = {}
-        if constraints and "post" in solver.fit_data:     # auto scores fills as they come out
-            extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
-        if training is not None:
-            extra["training"] = [t.to(work or t.dtype) for t in
-                                 _align_training(training, data, keep.tolist(), points.shape[1])]
-        Xk = torch.where(unfit[:, keep, None], torch.nan, points[:, keep])
-        Xk = Xk.to(work or Xk.dtype)
-        del points                      # long recordings: hold as few full-length copies as we can
-        plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
-        start = time.perf_counter()
-        stds = {}
-        index = {w: k for k, w in enumerate(plan.windows)}
-        shown = _progress(progress, windows=len(index), method=method)
-        try:
-            filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-                method, params, extra, Xk[a:b], unfit[a:b, keep], shown, info, stds,
-                (a, b), constraints, return_std, index[a, b] + 1, len(index)),
-                workers=1 if Xk.device.type != "cpu" else workers)
-        except BaseException:
-            shown.close()                           # no half-drawn bar before the error line
-            raise
-        info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
-        if len(stds) == len(plan.windows):      # every window has an estimate
-            part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
-            std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
-        del Xk
-        whole = len(keep) == out.shape[1]
-        part = out if whole else out[:, keep]
-        write = todo[:, keep, None] & ~torch.isfinite(part)
-        part[write] = filled[write].to(out.dtype)
-        del filled
-        if not whole:
-            out[:, keep] = part
+    return _Case(data, kind, method, params, solver, work, points, out,
+                 out.clone() if keep_given else None, torch.isfinite(out), missing, unfit, never,
+                 todo, training, seg_idx, info,
+                 torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device))
+
+
+def _solve(case: _Case, window, workers, progress, constraints: bool, return_std: bool,
+           solve: Callable) -> None:
+    """Solve the markers observed somewhere, window by window, and write their fill (and error
+    estimate) into ``case``."""
+    params, unfit, method = case.params, case.unfit, case.method
+    keep = torch.nonzero(~case.never).flatten()
+    kept_segments = None
+    if case.seg_idx is not None:
+        at = {int(j): i for i, j in enumerate(keep.tolist())}
+        kept_segments = {s: [at[j] for j in m if j in at] for s, m in case.seg_idx.items()}
+    declared = case.solver.declared_params()
+    if kept_segments is not None and "segments" in declared:
+        params["segments"] = kept_segments
+    if kept_segments is not None and "candidate_params" in declared:
+        given = dict(params.get("candidate_params") or {})      # auto's rigid candidate
+        given["rigid"] = {"segments": kept_segments, **given.get("rigid", {})}
+        params["candidate_params"] = given
+    extra = {}
+    if constraints and "post" in case.solver.fit_data:     # auto scores fills as they come out
+        extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
+    if case.training is not None:
+        extra["training"] = [t.to(case.work or t.dtype) for t in _align_training(
+            case.training, case.data, keep.tolist(), case.points.shape[1])]
+    Xk = torch.where(unfit[:, keep, None], torch.nan, case.points[:, keep])
+    Xk = Xk.to(case.work or Xk.dtype)
+    case.points = None              # long recordings: hold as few full-length copies as we can
+    plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
+    start = time.perf_counter()
+    stds = {}
+    index = {w: k for k, w in enumerate(plan.windows)}
+    case.shown = shown = _progress(progress, windows=len(index), method=method)
+    try:
+        filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
+            method, params, extra, Xk[a:b], unfit[a:b, keep], shown, case.info, stds,
+            (a, b), constraints, return_std, index[a, b] + 1, len(index), solve, keep),
+            workers=1 if Xk.device.type != "cpu" else workers)
+    except BaseException:
+        shown.close()                           # no half-drawn bar before the error line
+        raise
+    case.info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
+    todo, std, out = case.todo, case.std, case.out
+    if len(stds) == len(plan.windows):      # every window has an estimate
+        part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
+        std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
+    del Xk
+    whole = len(keep) == out.shape[1]
+    part = out if whole else out[:, keep]
+    write = todo[:, keep, None] & ~torch.isfinite(part)
+    part[write] = filled[write].to(out.dtype)
+    del filled
+    if not whole:
+        out[:, keep] = part
+
+
+def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return_std: bool):
+    """The post-step, the rejection and ``max_gap`` on the fill; the result as ``fill()`` gives
+    it."""
+    out, todo, data, info, std = case.out, case.todo, case.data, case.info, case.std
     if constraints and bool(todo.any()):
-        shown.post_step()
-        out, info["constraints"] = _constrain(out, own, unfit, data, extrapolate, seg_idx,
-                                              solver.spatial)
+        case.shown.post_step()
+        out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
+                                              case.seg_idx, case.solver.spatial)
         if reject is not None and isinstance(data, MarkerSequence):
-            info["rejected"] = _reject(out, std, missing, data.units, reject)
+            info["rejected"] = _reject(out, std, case.missing, data.units, reject)
     if bool(todo.any()):
-        shown.close(f"{method} filled {int(todo.sum())} samples ({info['windows']} window(s), "
-                    f"{info['n_iter']} iterations)")
+        case.shown.close(f"{case.method} filled {int(todo.sum())} samples ({info['windows']} "
+                         f"window(s), {info['n_iter']} iterations)")
     if max_gap is not None:
-        out = _unfill_long_gaps(out, given, missing, max_gap)
-    result = _as_kind(out, kind, data, info, missing)
+        out = _unfill_long_gaps(out, case.given, case.missing, max_gap)
+    result = _as_kind(out, case.kind, data, info, case.missing)
     if not return_std:
         return result
-    std = torch.where(torch.isfinite(out).all(dim=2) & missing, std, float("nan"))
-    if kind == "tensor":
+    std = torch.where(torch.isfinite(out).all(dim=2) & case.missing, std, float("nan"))
+    if case.kind == "tensor":
         return result, std
-    if kind == "sequence":
+    if case.kind == "sequence":
         result.meta["std"] = std.cpu().numpy()
     return result, std.cpu().numpy()
 
@@ -382,7 +461,7 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
         warnings.warn(f"{int(huge.sum())} observed sample(s) with huge coordinates (more than "
                       f"{HUGE_SPREADS:g} x the data's spread from its median; first: frame {t}, "
                       f"marker {j}) kept as they are but not used for the fit",
-                      UserWarning, stacklevel=3)
+                      UserWarning, stacklevel=5)
     return huge
 
 
@@ -422,7 +501,8 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
                  progress, info: dict,
                  stds: dict | None = None, key: tuple[int, int] = (0, 0),
                  constraints: bool = True, holdout: bool = False, window: int = 1,
-                 windows: int = 1) -> torch.Tensor:
+                 windows: int = 1, solve: Callable | None = None,
+                 markers: torch.Tensor | None = None) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
     steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
@@ -430,8 +510,9 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
     solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
     solver = get_solver(method, **params)
     where = {"window": window, "windows": windows, "max_iter": solver.max_iter}
-    filled = solver.fit(X, missing, callback=lambda d: progress.update({**where, **d}),
-                        **extra).transform(X)
+    (solve or _fit)(solver, X, missing, extra, lambda d: progress.update({**where, **d}),
+                    (slice(*key), markers))
+    filled = solver.transform(X)
     progress.window_done(window, solver.n_iter_)
     with _LOCK:                                 # windows may be solved in threads
         params.update(solver.carry())           # the next window reuses what this one chose
@@ -443,6 +524,11 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
                               post=constrain_candidates if constraints else None, **extra)
         stds[key] = est.to(filled.dtype)
     return filled
+
+
+def _fit(solver, X: torch.Tensor, missing: torch.Tensor, data: dict, callback, part) -> None:
+    """The default ``solve`` of :func:`fill_case`: the solver's own loop."""
+    solver.fit(X, missing, callback=callback, **data)
 
 
 def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tensor, seed: int = 0,
@@ -552,7 +638,7 @@ def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: 
     if count:
         warnings.warn(f"{count} filled sample(s) left unfilled: their estimated error is above "
                       f"{limit_mm:g} mm (reject=None fills them)", UnfilledWarning,
-                      stacklevel=3)
+                      stacklevel=5)
     return count
 
 
@@ -565,7 +651,7 @@ def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Ten
         out[a:b, j] = given[a:b, j]
     if long:
         warnings.warn(f"{len(long)} gap(s) longer than max_gap={max_gap} frames left unfilled",
-                      UnfilledWarning, stacklevel=3)
+                      UnfilledWarning, stacklevel=5)
     return out
 
 

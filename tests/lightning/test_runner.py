@@ -173,6 +173,7 @@ def test_table_is_mean_std_over_seeds_with_best_in_bold():
 
 def test_training_recordings_aligned_by_label_only_for_solvers_that_take_them(smoke_data, tmp_path,
                                                                              monkeypatch, recording):
+    import torchfill.filling as filling
     import torchfill.solvers as solvers
     from torchfill.lightning.data import load_recording, read_sequence
 
@@ -181,20 +182,21 @@ def test_training_recordings_aligned_by_label_only_for_solvers_that_take_them(sm
     if "pca_train" not in solvers.available():
         pytest.skip("pca_train not registered")
     calls = []
-    real = solvers.get_solver
+    real = filling.fill_case
 
-    def spy(name, **params):
-        calls.append((name, params))
-        return real(name, **params)
+    def spy(data, method, params, **kw):
+        calls.append((method, kw["training"]))
+        return real(data, method, params, **kw)
 
-    monkeypatch.setattr(solvers, "get_solver", spy)
+    monkeypatch.setattr(filling, "fill_case", spy)
     path = write_config(tmp_path, "recordings: [cmu_02_01.c3d]\ntraining: [hdm05_dg_06-03_03_120.c3d]\n"
                         "methods: {svt: ~, pca_train: {}, self: {method: pca_train, training: ~}}\n")
     got = rows(runner.run_experiment(path, output=tmp_path / "o"))
     assert [r["status"] for r in got] == ["ok"] * 3
-    assert all("training" not in p for n, p in calls if n == "linear")
-    given = [p["training"] for n, p in calls if n == "pca_train" and "training" in p]
-    assert len(given) == 2 and given[1] is None          # the 'self' method: no training set
+    assert [n for n, _ in calls] == ["linear", "pca_train", "pca_train"]
+    assert calls[0][1] is None                               # linear takes no training data
+    given = [t for n, t in calls if n == "pca_train"]
+    assert given[1] is None                                  # the 'self' method: no training set
     (A,) = given[0]
     test_labels = load_recording(smoke_data / "cmu_02_01.c3d").labels
     seq = read_sequence(train)
@@ -268,8 +270,9 @@ def test_segments_cut_the_recording_and_self_training_is_the_rest(smoke_data, tm
         seen.append(s0)
         assert mask.shape == (50, truth.shape[1]) and mask.any()
         np.testing.assert_array_equal(np.concatenate(rest), np.delete(truth, range(s0, s0 + 50), 0))
-        params = runner._training_params(cfg, case, rec.labels, rest)
-        assert sum(len(a) for a in params["training"]) == len(truth) - 50   # never the segment
+        params, kwargs = runner.fill_arguments(cfg, case, rec, rest)
+        assert "training" not in params
+        assert sum(len(a) for a in kwargs["training"]) == len(truth) - 50   # never the segment
     assert seen == sorted(set(seen)) and len(seen) == 3
 
 

@@ -69,9 +69,8 @@ class Evaluation(pl.Callback):
     k-th step, for convergence plots. None of this goes back to the solver or its stopping rule.
     """
 
-    def __init__(self, every: int = 0, curve_metrics=("rmse", "rmse_missing"), post=None) -> None:
+    def __init__(self, every: int = 0, curve_metrics=("rmse", "rmse_missing")) -> None:
         self.every, self.curve_metrics = every, tuple(curve_metrics)
-        self.post = post            # (filled, mask) -> filled: a post-step scored at the end
         self.curve: list[dict[str, float]] = []
         self.final: dict[str, float] = {}
         self.filled: np.ndarray | None = None
@@ -80,8 +79,6 @@ class Evaluation(pl.Callback):
         dm = trainer.datamodule
         filled = pl_module.filled().detach().cpu().numpy()
         truth = dm.evaluation_truth().cpu().numpy()
-        if self.post is not None:
-            filled = self.post(filled, dm.mask.cpu().numpy())
         return filled, metrics.score(filled, truth, dm.mask.cpu().numpy())
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:

@@ -15,12 +15,18 @@ from typing import Any
 
 KNOWN_KEYS = {"name", "base", "description", "data_dir", "results_dir", "recordings", "training",
               "frames", "segments", "protocol", "grid", "seeds", "methods", "metrics", "table",
-              "references", "plots", "showcase", "device", "dtype", "log", "projection"}
+              "references", "plots", "showcase", "device", "dtype", "log", "projection", "fill"}
 DEFAULT_METRICS = ["rmse", "ave", "std", "rmse_missing", "gap_error"]
 #: Keys whose relative paths are resolved against the folder of the config file that sets them.
 PATH_KEYS = ("data_dir", "results_dir")
 #: ``training: self`` = the rest of the test recording (the segment cut out; needs ``segments``).
 SELF = "self"
+#: The ``fill:`` entries a config may set: ``torchfill.fill``'s arguments for every case, over
+#: the papers' protocol (``torchfill.lightning.runner.PAPER``; ``dtype`` over the config's, null:
+#: the method's own), and ``sequence: true`` (the case goes to fill as a MarkerSequence: labels,
+#: rate, units); ``fill: {sequence: true, constraints: true, extrapolate: 0.25, window: 6000,
+#: dtype: null}`` scores what ``torchfill fill`` returns.
+FILL_KEYS = ("constraints", "extrapolate", "window", "segments", "dtype", "sequence")
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,7 @@ class Config:
     dtype: str = "float64"
     log: bool = True
     projection: str | None = None      # "side_view": 2-D side views of the recordings
+    fill: dict[str, Any] = field(default_factory=dict)   # fill()'s protocol arguments (FILL_KEYS)
     raw: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -204,7 +211,14 @@ def load_config(path) -> Config:
                   skipped=skipped, plots=dict(raw.get("plots") or {}),
                   showcase=dict(raw.get("showcase") or {}), device=str(raw.get("device", "cpu")),
                   dtype=str(raw.get("dtype", "float64")), log=bool(raw.get("log", True)),
-                  projection=raw.get("projection"), raw=raw)
+                  projection=raw.get("projection"), fill=_fill(raw.get("fill"), bad), raw=raw)
+
+
+def _fill(value, bad) -> dict[str, Any]:
+    value = {} if value is None else value
+    if not isinstance(value, dict) or set(value) - set(FILL_KEYS):
+        raise bad(f"fill expected a mapping with some of {', '.join(FILL_KEYS)}, found {value!r}")
+    return dict(value)
 
 
 def _grid(grid, bad) -> dict[str, list]:

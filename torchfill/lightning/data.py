@@ -143,19 +143,27 @@ class CaseDataModule(pl.LightningDataModule):
         True where the simulated gaps are.
     n_steps : int
         How many batches one epoch serves (the solver's ``max_iter``): one per ``training_step``.
+    X : tensor (T, J, 3), optional
+        The incomplete tensor to serve (NaN at least where ``mask``; its dtype and device are the
+        case's), as ``fill_case`` prepared it; default: the truth with NaN where ``mask``.
     """
 
     def __init__(self, truth, mask, *, n_steps: int = 1, dtype=torch.float64,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", X: torch.Tensor | None = None) -> None:
         super().__init__()
+        if X is not None:
+            dtype, device = X.dtype, X.device
         truth = torch.as_tensor(np.asarray(truth), dtype=dtype, device=device)
-        mask = torch.as_tensor(np.asarray(mask, dtype=bool), device=device)
-        if truth.ndim != 3 or mask.shape != truth.shape[:2]:
+        mask = torch.as_tensor(np.asarray(mask.cpu() if isinstance(mask, torch.Tensor) else mask,
+                                          dtype=bool), device=device)
+        if truth.ndim != 3 or mask.shape != truth.shape[:2] or (
+                X is not None and X.shape != truth.shape):
             raise ValueError(f"expected truth (T, J, 3) and mask (T, J), found "
                              f"{tuple(truth.shape)} and {tuple(mask.shape)}")
         self._truth = truth
         self.mask = mask
-        self.X = torch.where(mask[..., None], torch.full_like(truth, torch.nan), truth)
+        self.X = torch.where(mask[..., None], torch.full_like(truth, torch.nan),
+                             truth if X is None else X)
         self.n_steps = int(n_steps)
 
     def evaluation_truth(self) -> torch.Tensor:

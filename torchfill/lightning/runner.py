@@ -39,50 +39,105 @@ def _config(path: str) -> Config:
     return load_config(path)
 
 
+#: ``fill_case``'s arguments for the papers' protocols, what a case gets unless its config says
+#: otherwise (``fill:``; a method's ``constraints: true``): the method's own fill, the whole
+#: recording at once, no extrapolation limit; ``dtype`` is the config's. The case goes to
+#: ``fill_case`` as a tensor on the config's ``device`` (no labels, no rate: segments, where a
+#: method or the post-step uses them, are found in the data), or with ``fill: {sequence: true}``
+#: as a MarkerSequence (labels, rate, units), as ``torchfill fill`` reads a file.
+PAPER = {"constraints": False, "extrapolate": None, "window": None, "segments": None}
+
+
+@dataclass
+class CaseFill:
+    """What :func:`solve_case` gives: the fill a row scores and how the solver got there."""
+
+    filled: np.ndarray                 # (T, J, 3): the case's data, its gaps filled
+    solvers: list                      # the fitted solver of each window
+    stop: str = ""                     # why the (last) fit stopped
+    solve_seconds: float = 0.0         # inside the solvers
+    n_iter: int = 0
+    curve: list = field(default_factory=list)   # truth-based metrics per step (showcase)
+
+
 def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = False,
              progress: bool = False) -> dict[str, Any]:
     """Run one case; returns its ``cases.csv`` row (``status`` says "ok" or the error)."""
-    from ..solvers import get_solver
-    from .callbacks import Convergence, Evaluation, HistoryLogger
-    from .data import CaseDataModule
-    from .module import fit
-
-    import torch
+    from .. import metrics
 
     cfg = _config(config_path)
     row = R.key_row(case)
     start = time.perf_counter()
     try:
         rec, mask, rest = case_data(cfg, case.recording, case.point, case.seed)
-        params = _training_params(cfg, case, rec.labels, rest)
-        constrained = bool(params.pop("constraints", False))   # fill()'s post-step, scored
-        solver = get_solver(case.method.solver, **params)
-        data = {}
-        if constrained and "post" in solver.fit_data:   # auto scores candidates as fill() does
-            from ..constraints import constrain_candidates
-            data["post"] = constrain_candidates
-        dm = CaseDataModule(rec.truth, mask, n_steps=solver.max_iter,
-                            dtype=getattr(torch, cfg.dtype), device=cfg.device)
-        evaluation = Evaluation(every=1 if showcase else 0,
-                                post=_constrained_fill if constrained else None)
-        stop = Convergence()
-        accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
-        module = fit(solver, dm, callbacks=[stop, HistoryLogger(), evaluation],
-                     logger=_loggers(cfg, case, runs_dir), progress=progress,
-                     accelerator=accelerator, data=data)
-        row.update(solver=case.method.solver,
-                   **{k: evaluation.final.get(k, "") for k in R.SCORE_METRICS},
-                   n_iter=solver.n_iter_, rank=R.solver_rank(solver), converged=solver.converged_,
-                   stop=stop.reason, solve_s=round(module.solve_seconds, 4), T=rec.shape[0],
-                   J=rec.shape[1], status="ok")
+        got = solve_case(cfg, case, rec, mask, rest, runs_dir=runs_dir, showcase=showcase,
+                         progress=progress)
+        final = metrics.score(got.filled, rec.truth, mask)
+        solver = got.solvers[-1]
+        row.update(solver=case.method.solver, **{k: final.get(k, "") for k in R.SCORE_METRICS},
+                   n_iter=got.n_iter, rank=R.solver_rank(solver),
+                   converged=all(s.converged_ for s in got.solvers), stop=got.stop,
+                   solve_s=round(got.solve_seconds, 4), T=rec.shape[0], J=rec.shape[1],
+                   status="ok")
         if showcase:
-            _save_showcase(_showcase_path(runs_dir, case), case, rec, mask, evaluation,
-                           solver.history_)
+            _save_showcase(_showcase_path(runs_dir, case), case, rec, mask, got, solver.history_)
     except Exception as err:  # a failing method must not stop the grid; its row says why
         row.update(solver=case.method.solver, status=f"error: {type(err).__name__}: "
                    + " ".join(str(err).split())[:300])
     row["wall_s"] = round(time.perf_counter() - start, 4)
     return row
+
+
+def fill_arguments(cfg: Config, case: Case, rec, rest) -> tuple[dict, dict]:
+    """``(params, kwargs)`` of the case's call to ``fill_case`` -- and to ``torchfill.fill``,
+    which takes the same: the method's hyperparameters, and ``training``, ``dtype`` and the
+    protocol (:data:`PAPER`, the config's ``fill:``, the method's ``constraints``)."""
+    params = dict(case.method.params)
+    kwargs = {**PAPER, "dtype": cfg.dtype, **cfg.fill}
+    kwargs.pop("sequence", None)
+    if "constraints" in params:
+        kwargs["constraints"] = bool(params.pop("constraints"))
+    kwargs["training"] = _training(cfg, case, rec.labels, rest, params.pop("training", False))
+    return params, kwargs
+
+
+def solve_case(cfg: Config, case: Case, rec, mask, rest, *, runs_dir: str | None = None,
+               showcase: bool = False, progress: bool = False) -> CaseFill:
+    """Fill one case through :func:`torchfill.filling.fill_case` -- the path of
+    ``torchfill.fill`` -- with each window's solver driven by a Lightning Trainer (one
+    ``solver.step()`` per training step; the truth goes to the evaluation callback only)."""
+    import torch
+
+    from ..filling import fill_case
+    from ..sequence import MarkerSequence
+    from .callbacks import Convergence, Evaluation, HistoryLogger
+    from .data import CaseDataModule
+    from .module import fit
+
+    params, kwargs = fill_arguments(cfg, case, rec, rest)
+    X = np.where(mask[..., None], np.nan, rec.truth)
+    data = (MarkerSequence(X, list(rec.labels), rate=rec.rate, units=rec.units)
+            if cfg.fill.get("sequence") else torch.as_tensor(X, device=cfg.device))
+    got = CaseFill(filled=X, solvers=[])
+    loggers = _loggers(cfg, case, runs_dir) if runs_dir is not None else False
+    accelerator = "gpu" if str(cfg.device).startswith("cuda") else "cpu"
+
+    def solve(solver, Xw, missing, fit_data, callback, part):
+        frames, markers = part
+        truth = rec.truth[frames][:, markers.cpu().numpy()]
+        dm = CaseDataModule(truth, missing, n_steps=solver.max_iter, X=Xw)
+        stop, evaluation = Convergence(), Evaluation(every=1 if showcase else 0)
+        module = fit(solver, dm, callbacks=[stop, HistoryLogger(), evaluation], logger=loggers,
+                     progress=progress, accelerator=accelerator, data=fit_data)
+        got.solvers.append(solver)
+        got.stop, got.curve = stop.reason, evaluation.curve
+        got.solve_seconds += module.solve_seconds
+        got.n_iter += solver.n_iter_
+
+    filled = fill_case(data, case.method.solver, params, solve=solve, workers=1, **kwargs)
+    got.filled = np.asarray(filled.points if isinstance(filled, MarkerSequence)
+                            else filled.cpu().numpy())
+    return got
 
 
 def case_data(cfg: Config, recording: str, point, seed: int):
@@ -116,45 +171,34 @@ def _loggers(cfg: Config, case: Case, runs_dir: str):
     return logger
 
 
-def _constrained_fill(filled, mask):
-    """The solver's fill through ``fill()``'s constraints (method param ``constraints: true``)."""
-    from ..constraints import constrain
-
-    return constrain(filled, mask)[0]
-
-
-def _training_params(cfg: Config, case: Case, labels, rest) -> dict:
-    """The method's hyperparameters, with ``training`` as arrays ``(T_i, J, 3)`` aligned by short
-    label to ``labels``: the config's ``training`` recordings for every solver that declares
-    ``training``, unless the method sets its own (recording names; ``self``, the rest of the test
-    recording outside its segment; or ``~`` = none: the solver trains on what it is given)."""
+def _training(cfg: Config, case: Case, labels, rest, own=False):
+    """The case's training data, arrays ``(T_i, J, 3)`` aligned by short label to ``labels``, for
+    a method that takes them (``fit_data``): the config's ``training`` recordings, unless the
+    method names its own (``own``: recording names; ``self``, the rest of the test recording
+    outside its segment; ``~`` = none: the solver trains on what it is given); else None."""
     from ..solvers import get_solver
     from .data import align_training
 
-    params = dict(case.method.params)
-    own = "training" in params
-    declared = "training" in type(get_solver(case.method.solver)).declared_params()
-    if not own and not (cfg.training and declared):
-        return params
-    names = params["training"] if own else cfg.training
+    if "training" not in get_solver(case.method.solver).fit_data:
+        return None
+    names = cfg.training if own is False else own
     if names == SELF:
-        params["training"] = [part.copy() for part in rest]
-    elif names is not None:
-        names = [names] if isinstance(names, str) else names
-        params["training"] = [align_training(cfg.recording_path(n), labels, cfg.projection)
-                              for n in names]
-    return params
+        return [part.copy() for part in rest]
+    if not names:
+        return None
+    names = [names] if isinstance(names, str) else names
+    return [align_training(cfg.recording_path(n), labels, cfg.projection) for n in names]
 
 
-def _save_showcase(path: Path, case: Case, rec, mask, evaluation, history) -> None:
+def _save_showcase(path: Path, case: Case, rec, mask, got: CaseFill, history) -> None:
     """The showcase case's arrays for the convergence and trajectory plots (evaluation only)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     keys = sorted({k for h in history for k in h})
     hist = np.array([[h.get(k, np.nan) for k in keys] for h in history], dtype=float)
-    curve_keys = sorted({k for c in evaluation.curve for k in c})
-    curve = np.array([[c[k] for k in curve_keys] for c in evaluation.curve], dtype=float)
+    curve_keys = sorted({k for c in got.curve for k in c})
+    curve = np.array([[c[k] for k in curve_keys] for c in got.curve], dtype=float)
     tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, filled=evaluation.filled, truth=rec.truth, mask=mask,
+    np.savez_compressed(tmp, filled=got.filled, truth=rec.truth, mask=mask,
                         labels=np.array(rec.labels), rate=rec.rate, history=hist,
                         history_keys=np.array(keys), curve=curve, curve_keys=np.array(curve_keys),
                         method=case.method.label, key=np.array(case.key))
