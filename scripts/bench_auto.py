@@ -20,8 +20,9 @@ import torchfill
 from torchfill import gaps
 from torchfill.metrics import rmse
 from torchfill.solvers import get_solver
+from torchfill.data import data_dir
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 
 
 def main() -> None:

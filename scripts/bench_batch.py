@@ -22,7 +22,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-DATA = Path(os.environ.get("TORCHFILL_DATA") or ROOT / ".." / "shared" / "data")
+from torchfill.data import data_dir  # noqa: E402  (this checkout's, after the path)
+
+DATA = data_dir(ROOT)   # $TORCHFILL_DATA or ../shared/data
 SOURCES = ("HDM_bd_01-02_01_120.c3d", "hdm05_bd_05-01_01_120.c3d", "hdm05_mm_01-02_03_120.c3d",
            "cmu_85_02.c3d", "cmu_135_02.c3d")
 

@@ -15,10 +15,13 @@ import pstats
 import time
 import warnings
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
 import torchfill
+from torchfill.data import data_dir
 from torchfill import gaps, metrics
 from torchfill.solvers import get_solver
 
@@ -32,7 +35,7 @@ def main() -> None:
     ap.add_argument("-p", "--param", action="append", default=[], help="method=name=value")
     ap.add_argument("--profile", action="store_true")
     args = ap.parse_args()
-    data = os.environ.get("TORCHFILL_DATA", "../shared/data")
+    data = data_dir(Path(__file__).resolve().parents[1])
     truth = torchfill.read(os.path.join(data, args.recording)).points[:1000]
     extra: dict[str, dict] = {}
     for item in args.param:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -27,7 +26,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's torchfill, also in the per-length subprocesses
-DATA = Path(os.environ.get("TORCHFILL_DATA") or ROOT / ".." / "shared" / "data")
+from torchfill.data import data_dir  # noqa: E402  (this checkout's, after the path)
+
+DATA = data_dir(ROOT)   # $TORCHFILL_DATA or ../shared/data
 FILE = "hdm05_bd_05-01_01_120.c3d"
 BLOCK = 3000
 

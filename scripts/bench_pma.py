@@ -23,8 +23,9 @@ import torch
 
 import torchfill
 from torchfill import gaps, metrics
+from torchfill.data import data_dir
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 METHODS = ["linear", "pca_gloersen", "glr", "li", "lpr", "lgrnn", "pma"]
 
 

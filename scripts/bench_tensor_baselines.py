@@ -25,8 +25,9 @@ import torch
 from torchfill import gaps, metrics
 from torchfill.lightning.data import load_recording
 from torchfill.solvers import get_solver
+from torchfill.data import data_dir
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 METHODS = ("halrtc", "spc", "pstnn")
 
 

@@ -18,10 +18,13 @@ import statistics
 import time
 import warnings
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
 import torchfill
+from torchfill.data import data_dir
 from torchfill import gaps, ops
 from torchfill.ops import tensor as ours
 from torchfill.solvers import get_solver
@@ -106,7 +109,7 @@ def per_call(repeat: int) -> None:
 
 
 def per_iteration(repeat: int) -> None:
-    data = os.environ.get("TORCHFILL_DATA", "../shared/data")
+    data = data_dir(Path(__file__).resolve().parents[1])
     truth = torchfill.read(os.path.join(data, "hdm05_mm_01-02_03_120.c3d")).points[:1000]
     mask = gaps.multi_gap(*truth.shape[:2], n_markers=20, gap_length=100, max_gaps=5, seed=0)
     X = torch.from_numpy(np.where(mask[..., None], np.nan, truth))

@@ -9,7 +9,6 @@ Recordings are tiled in time (hdm05_bd_05-01_01_120 followed by hdm05_mm_01-02_0
 """
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
@@ -20,8 +19,9 @@ import torchfill
 import torchfill.solvers as S
 from torchfill import gaps, metrics
 from torchfill.solvers import tucker as tk
+from torchfill.data import data_dir
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 
 
 def load(name: str) -> np.ndarray:

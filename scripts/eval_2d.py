@@ -29,8 +29,9 @@ import numpy as np
 import torchfill
 from torchfill import gaps, metrics
 from torchfill.projection import side_view
+from torchfill.data import data_dir
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 FILES = ("cmu_02_01.c3d", "cmu_85_02.c3d", "cmu_85_12.c3d", "cmu_135_02.c3d",
          "HDM_bd_01-02_01_120.c3d", "hdm05_bd_05-01_01_120.c3d", "hdm05_mm_01-02_03_120.c3d",
          "hdm05_dg_06-03_03_120.c3d")

@@ -32,8 +32,9 @@ from scipy.stats import spearmanr
 import torchfill
 from torchfill import gaps
 from torchfill.metrics import gap_runs, rmse
+from torchfill.data import data_dir
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 SINGLES = ("linear", "pchip", "spline", "pca_train", "svt", "cp", "tucker_tnn", "rigid",
            "pca_gloersen", "li", "lgrnn", "pma")
 

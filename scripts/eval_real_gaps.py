@@ -22,14 +22,14 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import torch
 from scipy.stats import spearmanr
 
 import torchfill
 from torchfill import metrics
 from torchfill.solvers.rigid import rigid_pairs
+from torchfill.data import data_dir
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = data_dir(Path(__file__).resolve().parents[1])   # $TORCHFILL_DATA or ../shared/data
 #: The 17 recordings with real gaps (PROVENANCE.md): gaps in markers that are observed at times.
 #: ktk_tennis_serve_nan.c3d (artificial gaps) is scored against its twin instead, and
 #: osim_hamner_subject02_running.trc only lacks a never-observed marker.

@@ -29,7 +29,6 @@ import argparse
 import contextlib
 import io
 import json
-import os
 import signal
 import sys
 import tempfile
@@ -48,8 +47,9 @@ import torchfill                                         # noqa: E402
 from torchfill import cli                                # noqa: E402
 from torchfill.io import c3d as c3d_io                   # noqa: E402
 from torchfill.sequence import MarkerSequence            # noqa: E402
+from torchfill.data import data_dir                    # noqa: E402
 
-DATA = Path(os.environ.get("TORCHFILL_DATA") or REPO / ".." / "shared" / "data").resolve()
+DATA = data_dir(REPO)   # $TORCHFILL_DATA or ../shared/data
 SPECIAL_TEXT = ["nan", "NaN", "inf", "-inf", "1e400", "-1e400", "1e18", "1e34", "1e300", "-0",
                 "0", "0.0", "", " ", "abc", "1,5", "0x10", "1e-320", "１２", "+", ".", "e5",
                 "9" * 400, "1e", "--1", "\x00", "Ä"]
