@@ -46,49 +46,6 @@ def complete(name: str, frames: int | None) -> np.ndarray:
     return P[:, np.isfinite(P).all(axis=2).all(axis=0)]
 
 
-def dense_clustered(P: np.ndarray, *, groups: int = 6, windows: int = 2, seed: int = 0) -> np.ndarray:
-    """Every marker has a gap: markers grouped by mean position (nearest of ``groups`` random
-    markers), each group hidden over ``windows`` windows of 30-100 frames, each marker's
-    start and end jittered by up to 5 frames."""
-    rng = np.random.default_rng(seed)
-    T, J = P.shape[:2]
-    centre = P.mean(axis=0)
-    seeds = rng.choice(J, size=groups, replace=False)
-    group = np.argmin(((centre[:, None] - centre[seeds][None]) ** 2).sum(axis=2), axis=1)
-    mask = np.zeros((T, J), dtype=bool)
-    for g in range(groups):
-        for _ in range(windows):
-            length = int(rng.integers(30, 101))
-            start = int(rng.integers(0, T - length))
-            for j in np.flatnonzero(group == g):
-                a = max(0, start + int(rng.integers(-5, 6)))
-                mask[a:min(T, a + length + int(rng.integers(-5, 6))), j] = True
-    return mask
-
-
-def still_window(P: np.ndarray, *, n_markers: int, gap_length: int, seed: int = 0) -> np.ndarray:
-    """``n_markers`` random markers hidden over the ``gap_length`` frames where the markers move
-    least (mean speed), as in the near-still CMU 85_02 case of the issue."""
-    rng = np.random.default_rng(seed)
-    speed = np.linalg.norm(np.diff(P, axis=0), axis=2).mean(axis=1)
-    run = np.convolve(speed, np.ones(gap_length), mode="valid")
-    start = int(np.argmin(run[1:-1])) + 1
-    mask = np.zeros(P.shape[:2], dtype=bool)
-    mask[start:start + gap_length, rng.choice(P.shape[1], size=n_markers, replace=False)] = True
-    return mask
-
-
-def trial_ends(P: np.ndarray, *, n_markers: int, gap_length: int, seed: int = 0) -> np.ndarray:
-    """Half of ``n_markers`` random markers missing the first ``gap_length`` frames, half the last."""
-    rng = np.random.default_rng(seed)
-    T, J = P.shape[:2]
-    chosen = rng.choice(J, size=n_markers, replace=False)
-    mask = np.zeros((T, J), dtype=bool)
-    mask[:gap_length, chosen[::2]] = True
-    mask[T - gap_length:, chosen[1::2]] = True
-    return mask
-
-
 def suite() -> list[tuple[str, str, int | None, callable]]:
     """(case, recording, frames, mask maker) of the built-in suite: modest, for a shared machine."""
     return [
@@ -102,15 +59,15 @@ def suite() -> list[tuple[str, str, int | None, callable]]:
         ("cmu02_01_shared20", "cmu_02_01.c3d", None,
          lambda P: gaps.shared_window(*P.shape[:2], n_markers=20, gap_length=50, seed=2)),
         ("cmu85_02_still30", "cmu_85_02.c3d", None,
-         lambda P: still_window(P, n_markers=30, gap_length=50)),
-        ("hdm_bd_dense", "HDM_bd_01-02_01_120.c3d", 1200, lambda P: dense_clustered(P, seed=0)),
-        ("cmu135_02_dense", "cmu_135_02.c3d", 1200, lambda P: dense_clustered(P, seed=1)),
+         lambda P: gaps.still_window(P, n_markers=30, gap_length=50)),
+        ("hdm_bd_dense", "HDM_bd_01-02_01_120.c3d", 1200, lambda P: gaps.grouped_windows(P, seed=0)),
+        ("cmu135_02_dense", "cmu_135_02.c3d", 1200, lambda P: gaps.grouped_windows(P, seed=1)),
         ("cmu85_12_blackout", "cmu_85_12.c3d", 1200,
          lambda P: gaps.blackout(*P.shape[:2], gap_length=20, seed=0)),
         ("hdm_dg_ends", "hdm05_dg_06-03_03_120.c3d", None,
-         lambda P: trial_ends(P, n_markers=10, gap_length=30)),
+         lambda P: gaps.trial_ends(*P.shape[:2], n_markers=10, gap_length=30)),
         ("cmu85_12_ends", "cmu_85_12.c3d", 1200,
-         lambda P: trial_ends(P, n_markers=12, gap_length=60, seed=1)),
+         lambda P: gaps.trial_ends(*P.shape[:2], n_markers=12, gap_length=60, seed=1)),
     ]
 
 

@@ -54,39 +54,6 @@ CASES = [
 ]
 
 
-def still_window(P: np.ndarray, *, n_markers: int, gap_length: int, seed: int) -> np.ndarray:
-    """``n_markers`` random markers missing together over the ``gap_length`` frames (not touching
-    the ends) where the mean marker speed is smallest."""
-    T, J, _ = P.shape
-    speed = np.linalg.norm(np.diff(P, axis=0), axis=2).mean(axis=1)          # (T-1,)
-    run = np.convolve(speed, np.ones(gap_length), "valid")                     # window sums
-    start = 1 + int(np.argmin(run[1:T - gap_length - 1]))
-    rng = np.random.default_rng(seed)
-    mask = np.zeros((T, J), dtype=bool)
-    mask[start:start + gap_length, rng.choice(J, size=n_markers, replace=False)] = True
-    return mask
-
-
-def dense(P: np.ndarray, *, seed: int, min_len: int = 30, max_len: int = 120) -> np.ndarray:
-    """Clustered occlusions: a marker without a gap yet and its 1-4 nearest neighbours (mean
-    distance over the window) vanish together for ``min_len``-``max_len`` frames, until every
-    marker has a gap. No frame loses every marker."""
-    T, J, _ = P.shape
-    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=3).mean(axis=0)       # (J, J)
-    rng = np.random.default_rng(seed)
-    mask = np.zeros((T, J), dtype=bool)
-    while not mask.any(axis=0).all():
-        j = rng.choice(np.flatnonzero(~mask.any(axis=0)))
-        cluster = np.argsort(D[j])[: 1 + int(rng.integers(1, 5))]
-        L = int(rng.integers(min_len, min(max_len, T // 3) + 1))
-        start = int(rng.integers(0, T - L + 1))
-        trial = mask.copy()
-        trial[start:start + L, cluster] = True
-        if not trial.all(axis=1).any():
-            mask = trial
-    return mask
-
-
 def make_mask(kind: str, P: np.ndarray, kw: dict) -> np.ndarray:
     T, J, _ = P.shape
     if kind == "hdm_multigap":
@@ -94,9 +61,9 @@ def make_mask(kind: str, P: np.ndarray, kw: dict) -> np.ndarray:
     if kind == "cmu_window":
         return gaps.shared_window(T, J, **kw)
     if kind == "still_window":
-        return still_window(P, **kw)
+        return gaps.still_window(P, **kw)
     if kind == "dense":
-        return dense(P, **kw)
+        return gaps.clustered(P, **kw)
     if kind == "blackout":
         return gaps.blackout(T, J, **kw)
     raise ValueError(f"unknown case kind {kind!r}")

@@ -270,3 +270,41 @@ def test_transplant_by_layout_sends_markers_to_the_same_place_on_the_body():
 def test_transplant_refuses_a_pattern_shorter_than_the_recording():
     with pytest.raises(ValueError, match="cut the target"):
         gaps.transplant(np.ones((10, 2), dtype=bool) & False | np.eye(10, 2, dtype=bool), 20, 3)
+
+
+def _walk(T=400, J=12, seed=0):
+    """Markers drifting at a speed that is lowest around frame 200."""
+    rng = np.random.default_rng(seed)
+    speed = 1.0 + np.abs(np.arange(T) - 200)[:, None, None] / 50.0
+    return np.cumsum(rng.normal(size=(T, J, 3)) * speed, axis=0)
+
+
+def test_trial_ends_hides_markers_at_both_ends_only():
+    mask = gaps.trial_ends(300, 12, n_markers=6, gap_length=40, seed=3)
+    hidden = np.flatnonzero(mask.any(axis=0))
+    assert len(hidden) == 6 and mask.sum() == 6 * 40
+    assert mask[:40].sum() == 3 * 40 and mask[-40:].sum() == 3 * 40 and not mask[40:-40].any()
+
+
+def test_still_window_sits_where_the_markers_move_least():
+    P = _walk()
+    mask = gaps.still_window(P, n_markers=5, gap_length=60, seed=1)
+    rows = np.flatnonzero(mask.any(axis=1))
+    assert mask.any(axis=0).sum() == 5 and len(rows) == 60 and np.ptp(rows) == 59
+    assert rows[0] < 200 < rows[-1]                           # the slow stretch
+    assert not mask[0].any() and not mask[-1].any()
+
+
+def test_clustered_gives_every_marker_a_gap_and_never_a_whole_frame():
+    P = _walk(J=15)
+    for seed in range(3):
+        mask = gaps.clustered(P, seed=seed)
+        assert mask.any(axis=0).all() and not mask.all(axis=1).any()
+        assert np.array_equal(mask, gaps.clustered(P, seed=seed))
+
+
+def test_grouped_windows_hide_every_marker_in_group_windows():
+    P = _walk(J=15)
+    mask = gaps.grouped_windows(P, groups=4, windows=2, seed=2)
+    assert mask.any(axis=0).all()
+    assert np.array_equal(mask, gaps.grouped_windows(P, groups=4, windows=2, seed=2))

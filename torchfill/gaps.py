@@ -127,6 +127,76 @@ def generate(protocol: str, T: int, J: int, **kwargs) -> np.ndarray:
     return PROTOCOLS[protocol](T, J, **kwargs)
 
 
+# --- evaluation suites: masks shaped by the data or the trial ends ----------------------------
+def trial_ends(T: int, J: int, *, n_markers: int, gap_length: int, seed: int = 0) -> np.ndarray:
+    """Half of ``n_markers`` random markers missing the first ``gap_length`` frames, the other
+    half the last ``gap_length`` frames (what real recordings lose most)."""
+    _check(T, J, n_markers, gap_length)
+    rng = np.random.default_rng(seed)
+    chosen = rng.choice(J, size=n_markers, replace=False)
+    mask = np.zeros((T, J), dtype=bool)
+    mask[:gap_length, chosen[::2]] = True
+    mask[T - gap_length:, chosen[1::2]] = True
+    return mask
+
+
+def still_window(points: np.ndarray, *, n_markers: int, gap_length: int,
+                 seed: int = 0) -> np.ndarray:
+    """``n_markers`` random markers missing together over the ``gap_length`` frames (not touching
+    the ends) where the mean marker speed of ``points`` (T, J, 3) is smallest."""
+    T, J, _ = points.shape
+    _check(T, J, n_markers, gap_length + 2)
+    speed = np.linalg.norm(np.diff(points, axis=0), axis=2).mean(axis=1)      # (T-1,)
+    run = np.convolve(speed, np.ones(gap_length), "valid")                     # window sums
+    start = 1 + int(np.argmin(run[1:T - gap_length - 1]))
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((T, J), dtype=bool)
+    mask[start:start + gap_length, rng.choice(J, size=n_markers, replace=False)] = True
+    return mask
+
+
+def clustered(points: np.ndarray, *, seed: int = 0, min_len: int = 30,
+              max_len: int = 120) -> np.ndarray:
+    """Clustered occlusions: a marker without a gap yet and its 1-4 nearest neighbours (mean
+    distance in ``points`` (T, J, 3)) vanish together for ``min_len``-``max_len`` frames, until
+    every marker has a gap. No frame loses every marker."""
+    T, J, _ = points.shape
+    D = np.linalg.norm(points[:, :, None] - points[:, None], axis=3).mean(axis=0)   # (J, J)
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((T, J), dtype=bool)
+    while not mask.any(axis=0).all():
+        j = rng.choice(np.flatnonzero(~mask.any(axis=0)))
+        cluster = np.argsort(D[j])[: 1 + int(rng.integers(1, 5))]
+        L = int(rng.integers(min_len, min(max_len, T // 3) + 1))
+        start = int(rng.integers(0, T - L + 1))
+        trial = mask.copy()
+        trial[start:start + L, cluster] = True
+        if not trial.all(axis=1).any():
+            mask = trial
+    return mask
+
+
+def grouped_windows(points: np.ndarray, *, groups: int = 6, windows: int = 2,
+                    seed: int = 0) -> np.ndarray:
+    """Every marker has a gap: markers grouped by mean position in ``points`` (T, J, 3) (nearest
+    of ``groups`` random markers), each group hidden over ``windows`` windows of 30-100 frames,
+    each marker's start and end jittered by up to 5 frames."""
+    rng = np.random.default_rng(seed)
+    T, J = points.shape[:2]
+    centre = points.mean(axis=0)
+    seeds = rng.choice(J, size=groups, replace=False)
+    group = np.argmin(((centre[:, None] - centre[seeds][None]) ** 2).sum(axis=2), axis=1)
+    mask = np.zeros((T, J), dtype=bool)
+    for g in range(groups):
+        for _ in range(windows):
+            length = int(rng.integers(30, 101))
+            start = int(rng.integers(0, T - length))
+            for j in np.flatnonzero(group == g):
+                a = max(0, start + int(rng.integers(-5, 6)))
+                mask[a:min(T, a + length + int(rng.integers(-5, 6))), j] = True
+    return mask
+
+
 # --- real gap patterns -------------------------------------------------------------------------
 
 def vertical_axis(points: np.ndarray) -> int:
