@@ -10,8 +10,10 @@ per-coordinate std of ``fill(..., return_std=True)``). The tests, each a pure fu
   expected RMS of its D-dimensional error; ``check`` above ``EST_CHECK_MM`` when it is also above
   ``EST_RELATIVE`` x the recording's median gap estimate, ``reject`` above ``EST_REJECT_MM``;
 - **step at the cap**: a one-frame step inside or at the edges of the gap at or above
-  ``STEP_AT_CAP`` x the recording's step cap (the constraints shorten longer steps to just below
-  the cap, so a fill that needed shortening ends *at* it; above it means it was not constrained);
+  ``STEP_AT_CAP`` x the recording's step cap -- for a gap touching a trial end, the lower cap
+  of a fill held at one edge only (the constraints shorten longer steps to just below the cap,
+  so a fill that needed shortening ends *at* it; above the interior cap means it was not
+  constrained);
 - **rigid partner**: the largest deviation of the distance to a rigid partner from that pair's
   median, over the pair's own observed spread (the 95th percentile of its observed deviations,
   at least the rigidity tolerance); ``check`` above ``RIGID_CHECK`` spreads, ``reject`` above
@@ -39,7 +41,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .. import metrics
-from ..constraints import SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE, VOLUME_MARGIN, rigid_donors
+from ..constraints import (END_STEP_FACTOR, SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE,
+                           VOLUME_MARGIN, rigid_donors)
 from ..solvers.rigid import index_segments, rigid_pairs
 
 # The constants below were chosen with scripts/calibrate_qc.py on its own cases (the tennis file
@@ -60,6 +63,9 @@ EST_RELATIVE = 1.0
 EST_REJECT_MM = 30.0
 #: A step at or above this share of the cap counts as "at the cap".
 STEP_AT_CAP = 0.99
+#: Relative rounding a step may exceed the cap by and still count as at it (a fill written to a
+#: C3D file is float32: 1e-4 mm on coordinates of 2 m).
+STEP_ROUNDING = 1e-4
 #: Rigid-partner deviation, in the pair's own observed spreads: ``check`` / ``reject`` above.
 RIGID_CHECK = 5.0
 RIGID_REJECT = 15.0
@@ -95,6 +101,7 @@ class Thresholds:
     est_reject: float
     step_cap: float         # the recording's step cap (constraints)
     step_at: float          # STEP_AT_CAP x step_cap
+    end_step_cap: float     # the cap of a gap touching a trial end
     rigid_check: float      # in spreads
     rigid_reject: float
     volume: tuple           # (lo, hi) per axis
@@ -114,7 +121,9 @@ class Thresholds:
         out = [f"estimated RMS error > {self.est_check:.4g} {u} and > {EST_RELATIVE:g} x the "
                f"median gap estimate ({median}): check; > {self.est_reject:.4g} {u}: reject",
                f"one-frame step >= {self.step_at:.4g} {u} ({STEP_AT_CAP:g} x the step cap "
-               f"{self.step_cap:.4g} {u}): check; above the cap: reject",
+               f"{self.step_cap:.4g} {u}; in a gap touching a trial end >= "
+               f"{STEP_AT_CAP * self.end_step_cap:.4g} {u}, {STEP_AT_CAP:g} x its cap "
+               f"{self.end_step_cap:.4g} {u}): check; above the step cap: reject",
                f"interior gaps up to {SHORT_SECONDS:g} s: fill departs from the interpolation "
                f"across the gap by > {self.disagree:.4g} {u} RMS: check"]
         if self.dims == 3:
@@ -148,6 +157,7 @@ def thresholds(units: str, per: float, step_cap: float, bounds, median_est: floa
                       disagree=DISAGREE_MM * per,
                       est_relative=EST_RELATIVE * median_est, est_reject=EST_REJECT_MM * per,
                       step_cap=step_cap, step_at=STEP_AT_CAP * step_cap,
+                      end_step_cap=step_cap * END_STEP_FACTOR / STEP_FACTOR,
                       rigid_check=RIGID_CHECK, rigid_reject=RIGID_REJECT, volume=bounds,
                       extrapolated_s=EXTRAPOLATED_SECONDS,
                       rate=float(rate) if rate else math.nan, dims=dims)
@@ -186,10 +196,12 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
         flag(1, f"fill departs {dis:.3g} {u} from the interpolation across this short gap "
                 f"(> {th.disagree:.3g} {u})")
     step = row["max_step"]
-    if np.isfinite(step) and step > th.step_cap * (1 + 1e-6):
+    end = row["kind"] in ("start", "end")
+    cap = th.end_step_cap if end else th.step_cap
+    if np.isfinite(step) and step > th.step_cap * (1 + STEP_ROUNDING):
         flag(2, f"step {step:.3g} {u} above the cap {th.step_cap:.3g} {u}")
-    elif np.isfinite(step) and step >= th.step_at:
-        flag(1, f"step {step:.3g} {u} at the cap {th.step_cap:.3g} {u}")
+    elif np.isfinite(step) and step >= STEP_AT_CAP * cap:
+        flag(1, f"step {step:.3g} {u} at the {'trial-end ' if end else ''}cap {cap:.3g} {u}")
     ratio = row["rigid_ratio"]
     if np.isfinite(ratio) and ratio > th.rigid_check:
         flag(2 if ratio > th.rigid_reject else 1,
@@ -213,7 +225,7 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
 
 def gap_table(points, filled, rate: float | None = None, names=None, std=None, *,
               units: str = "mm", first_frame: int = 0, support=None, spatial: bool = False,
-              segments=None) -> list[dict]:
+              segments=None, prior=None) -> list[dict]:
     """One row per gap of ``points`` (the input, (T, J, D) with NaN), judged on ``filled`` (the
     fill's output) and ``std`` ((T, J), the fill's error estimate per coordinate, optional).
 
@@ -224,6 +236,8 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     so, or -- with ``spatial`` (the fill came from a method that places markers from the same
     frame) -- in frames with ``SPATIAL_MIN`` or more markers observed. Each row has ``verdict``
     and ``reasons`` (see :func:`verdict`); ``table_thresholds(rows)`` gives the thresholds.
+    ``prior`` (T, J): samples the file marks as filled by earlier software (C3D residual 0):
+    not gaps, and not observations for the thresholds -- as ``fill()`` treats them.
     """
     X = np.asarray(points, dtype=np.float64)
     F = np.asarray(filled, dtype=np.float64)
@@ -231,7 +245,7 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
         raise ValueError(f"filled has shape {F.shape}, the input {X.shape}")
     T, J, D = X.shape
     missing = ~np.isfinite(X).all(axis=2)
-    observed = ~missing
+    observed = ~missing & ~(np.asarray(prior, dtype=bool) if prior is not None else False)
     partners, donors, seg_names, scale = {}, np.zeros((T, J), dtype=bool), {}, None
     if observed.any() and D == 3:
         pairs = rigid_pairs(np.where(observed[..., None], X, np.nan), observed)
@@ -261,7 +275,7 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     black = ~observed.any(axis=1)
     rows = []
     for j, a, b in metrics.gap_runs(missing):
-        if not observed[:, j].any():
+        if missing[:, j].all():
             continue
         row = _gap_row(X, F, j, a, b, rate, names, partners.get(int(j)), support, bounds, black)
         row["est_rmse"] = est_rmse(std, j, a, b, D)
@@ -370,9 +384,11 @@ def _gap_row(X, F, j, a, b, rate, names, partners, support, bounds, black) -> di
 def summary(rows: list[dict]) -> str:
     """``N gaps: a ok, b check, c reject`` (+ unfilled)."""
     n = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
-    unfilled = sum(r["filled_frames"] == 0 for r in rows)
+    empty = sum(r["filled_frames"] == 0 for r in rows)
+    samples = sum(r["unfilled"] for r in rows)
     return (f"{len(rows)} gaps: {n['ok']} ok, {n['check']} check, {n['reject']} reject"
-            + (f" ({unfilled} left unfilled)" if unfilled else ""))
+            + (f" ({empty} left unfilled)" if empty else "")
+            + (f"; {samples} missing sample(s) left unfilled" if samples else ""))
 
 
 def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = None) -> str:
@@ -388,14 +404,15 @@ def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = No
                      "(fill --std OUT.csv, then qc --std OUT.csv)")
     width = max(6, min(16, max(len(r["marker"]) for r in rows)))
     rig = th.dims == 3                                  # no rigid bodies in image keypoints
-    lines.append(f"{'marker':<{width}} {'frames':>13} {'len':>5} {'kind':<8} {'est_rmse':>9} "
-                 f"{'max_step':>9} " + (f"{'rigid_x':>7} " if rig else "")
+    lines.append(f"{'marker':<{width}} {'frames':>13} {'len':>5} {'unfilled':>8} {'kind':<8} "
+                 f"{'est_rmse':>9} {'max_step':>9} " + (f"{'rigid_x':>7} " if rig else "")
                  + f"{'support':>7}  verdict  reasons")
-    lines.append(f"{'':<{width}} {'(file)':>13} {'':>5} {'':<8} {'(' + u + ')':>9} "
-                 f"{'(' + u + ')':>9}" + (f" {'spread':>7}" if rig else ""))
+    lines.append(f"{'':<{width}} {'(file)':>13} {'':>5} {'(frames)':>8} {'':<8} "
+                 f"{'(' + u + ')':>9} {'(' + u + ')':>9}" + (f" {'spread':>7}" if rig else ""))
     for r in rows:
         lines.append(f"{r['marker'][:width]:<{width}} {r['first_frame']:>6}-{r['last_frame']:<6} "
-                     f"{r['frames']:>5} {r['kind']:<8} {r['est_rmse']:>9.3g} {r['max_step']:>9.3g} "
+                     f"{r['frames']:>5} {r['unfilled']:>8} {r['kind']:<8} {r['est_rmse']:>9.3g} "
+                     f"{r['max_step']:>9.3g} "
                      + (f"{r['rigid_ratio']:>7.3g} " if rig else "")
                      + f"{r['support']:>7.0%}  {r['verdict']:<7}  {'; '.join(r['reasons'])}")
     return "\n".join(lines)
@@ -413,7 +430,8 @@ def to_json(rows: list[dict]) -> list[dict]:
                     "last_frame": int(r["last_frame"]), "verdict": r["verdict"],
                     "est_rmse": num(r["est_rmse"]), "reasons": list(r["reasons"]),
                     "segment": r.get("segment"), "frames": r["frames"], "kind": r["kind"],
-                    "filled_frames": r["filled_frames"], "support": num(r["support"]),
+                    "filled_frames": r["filled_frames"], "unfilled": r["unfilled"],
+                    "support": num(r["support"]),
                     "max_step": num(r["max_step"]), "rigid_ratio": num(r["rigid_ratio"]),
                     "rigid_partner": r["rigid_partner"] or None, "outside": r["outside"],
                     "extrapolated": r["extrapolated"], "blackout": r["blackout"]})
