@@ -289,3 +289,25 @@ def test_a_short_gap_filled_off_its_interpolation_is_flagged_whatever_the_estima
     assert off["verdict"] == "check" and any("interpolation" in r for r in off["reasons"])
     assert off["disagree"] == pytest.approx(20.0, rel=0.05)
     assert fine["verdict"] == "ok" and fine["disagree"] < 1.0
+
+
+def test_a_short_gap_on_its_interpolation_is_not_flagged_on_a_large_estimate_alone():
+    """Two independent fills agree: a 0.05 s interior gap filled within ``AGREE_MM`` of the
+    interpolation across it stays ``ok`` although its estimate says 20 mm (the reason says so);
+    a 0.5 s gap with the same estimate, or a short one filled 20 mm off, is flagged."""
+    X = loose()
+    gappy = X.copy()
+    gappy[100:105, 2] = gappy[100:150, 4] = gappy[200:205, 3] = np.nan
+    filled = X.copy()
+    filled[200:205, 3] += np.array([20.0, 0.0, 0.0])
+    std = np.where(np.isnan(gappy).any(axis=2), 20.0 / np.sqrt(3), np.nan)   # est_rmse 20 mm
+    for j in (0, 1, 5):                   # the recording's other gaps: estimated 0.5 mm
+        gappy[20:25, j] = gappy[250:255, j] = np.nan
+        std[20:25, j] = std[250:255, j] = 0.5 / np.sqrt(3)
+    rows = rows_by_start(qc.gap_table(gappy, filled, 100.0, std=std, units="mm"))
+    short, long_, off = rows[("2", 100)], rows[("4", 100)], rows[("3", 200)]
+    assert short["est_rmse"] == pytest.approx(20.0) and short["disagree"] < qc.AGREE_MM
+    assert short["verdict"] == "ok" and any("within" in r for r in short["reasons"])
+    assert long_["verdict"] == "check" and np.isnan(long_["disagree"])
+    assert off["verdict"] == "check"
+    assert any("estimated error" in r for r in off["reasons"])

@@ -222,7 +222,7 @@ document.querySelectorAll('table.sortable th').forEach(function (th, col) {
 _CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collapse:collapse;"
         "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
         "th{background:#eee;cursor:pointer;user-select:none}th[data-dir=asc]:after{content:' ▲'}"
-        "th[data-dir=desc]:after{content:' ▼'}td.l{text-align:left}tr.check td.v{background:"
+        "th[data-dir=desc]:after{content:' ▼'}td.l,th.l{text-align:left}tr.check td.v{background:"
         "#ffe0b2}tr.reject td.v{background:#ffcdd2}tr.ok td.v{background:#dcedc8}"
         ".legend span{display:inline-block;width:12px;height:12px;margin:0 4px 0 12px;"
         "vertical-align:middle}figure{margin:14px 0;padding-left:8px;border-left:4px solid "
@@ -294,7 +294,8 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
             ("reasons", "reasons", "l")]
     parts.append("<h2>All gaps</h2><p>Click a column head to sort.</p>"
                  "<table class='sortable'><thead><tr>"
-                 + "".join(f"<th>{head}</th>" for _, head, _ in cols) + "</tr></thead><tbody>")
+                 + "".join(f"<th class='{cls}'>{head}</th>" for _, head, cls in cols)
+                 + "</tr></thead><tbody>")
     for r in sorted(rows, key=lambda r: (_ORDER[r["verdict"]], r["j"], r["start"])):
         cells = []
         for key, _, cls in cols:
