@@ -24,7 +24,8 @@ per-coordinate std of ``fill(..., return_std=True)``). The tests, each a pure fu
   (no rigid donors from segment-mates, and not a spatial method's fill in a frame with
   ``SPATIAL_MIN`` markers seen), ``check`` when more than ``EXTRAPOLATED_SECONDS``;
 - **short gap, fill off the interpolation**: an interior gap up to ``SHORT_SECONDS`` whose fill
-  departs from the PCHIP interpolation across it by more than ``DISAGREE_MM`` (RMS);
+  departs from the PCHIP interpolation across it by more than ``DISAGREE_MM`` (RMS); one that
+  stays within ``AGREE_MM`` of it is not flagged on its estimated error alone;
 - **blackout**: frames in which no marker was observed (interpolated in time);
 - frames left unfilled are reported; a gap left wholly unfilled is ``reject``.
 
