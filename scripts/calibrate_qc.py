@@ -215,7 +215,8 @@ GROUPS = [("all cases", lambda g, n: True),
           ("calibration (own: tennis + transplants)", lambda g, n: g == "own"),
           ("held out (real-gap-pattern suite)", lambda g, n: g in ("suite", "new")),
           ("held out, new sources", lambda g, n: g == "new"),
-          ("ktk_tennis_serve_nan vs its clean twin", lambda g, n: n == "tennis")]
+          ("ktk_tennis_serve_nan vs its clean twin", lambda g, n: n == "tennis"),
+          ("suite + ktk_tennis_serve_nan", lambda g, n: g in ("suite", "new") or n == "tennis")]
 
 
 def markdown(rows: list[dict], command: str) -> str:
