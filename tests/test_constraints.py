@@ -3,6 +3,7 @@ teleport on a real gap file, samples inside the observed volume, continuity at g
 rigid donors used, and constraints=False giving the method's own fill."""
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -166,3 +167,64 @@ def test_soft_distances_hold_a_rigid_pair_with_a_tiny_spread_and_rare_jitter():
     d = np.linalg.norm(out[200:260, 1] - out[200:260, 0], axis=1)
     assert np.abs(d - 70).max() < 3.0                                    # mm (before: 12.6 mm)
     assert np.array_equal(out[~missing], X[~missing])
+
+
+def test_a_trial_end_fill_keeps_to_the_observed_steps_an_interior_fill_may_exceed_them():
+    """A fill held at one edge only (a gap touching a trial end) has no far edge that may need a
+    fast move: its steps are shortened to the 99.9th-percentile observed step; an interior fill
+    keeps steps up to 1.5 x that."""
+    from torchfill.constraints import END_STEP_FACTOR, STEP_FACTOR
+
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[:30, 0] = True                # trial start
+    missing[80:110, 3] = True             # interior
+    observed = ~missing
+    q999 = metrics.step_limit(X, observed, factor=1.0)
+    F = X.copy()
+    fast = 1.3 * q999 * np.array([1.0, 0.0, 0.0])
+    F[:30, 0] = X[30, 0] - fast * np.arange(30, 0, -1)[:, None]       # 1.3 x p99.9 per frame
+    F[80:95, 3] = X[79, 3] + fast * np.arange(1, 16)[:, None]         # out fast, back fast
+    F[95:110, 3] = X[110, 3] + fast * np.arange(15, 0, -1)[:, None]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out, report = constrain(F, missing)
+    steps = lambda P, j, a, b: np.linalg.norm(np.diff(P[a:b, j], axis=0), axis=1)   # noqa: E731
+    assert report.end_step_limit == pytest.approx(report.step_limit * END_STEP_FACTOR / STEP_FACTOR)
+    assert steps(out, 0, 0, 31).max() <= q999 * END_STEP_FACTOR
+    assert steps(F, 3, 79, 111)[1:-1].max() > 1.2 * q999          # kept: under the 1.5 x cap
+    assert steps(out, 3, 79, 111).max() > 1.2 * q999
+    assert np.array_equal(out[observed], X[observed])
+
+
+def test_walking_hybrid_default_fill_edges_and_every_missing_sample(recording):
+    """The default fill of c3dorg_s26_walking_hybrid_1_1 (trial starts with 3-5 markers seen): no
+    one-frame step at a gap edge, nor anywhere in a trial-end fill, above the recording's own
+    99.9th-percentile observed step; every missing sample is filled or counted in the warning
+    line, which splits the trial-end samples into spatial, extrapolated in time and left NaN."""
+
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_1.c3d"))
+    seen = ~seq.mask & ~seq.meta["filled"]            # the file's own interpolations are not data
+    q999 = metrics.step_limit(seq.points, seen, factor=1.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = torchfill.fill(seq)
+    P, T = out.points, seq.n_frames
+    fin = np.isfinite(P).all(axis=2)
+    for j, a, b in metrics.gap_runs(seq.mask):
+        path = P[max(a - 1, 0):min(b + 1, T), j]
+        steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        edge = [s for s, ok in ((steps[0], a > 0 and fin[a, j]),
+                                (steps[-1], b < T and fin[b - 1, j])) if ok]
+        assert all(s <= q999 * (1 + 1e-6) for s in edge), (seq.labels[j], a, b, edge)
+        if a == 0 or b == T:
+            assert np.nanmax(steps, initial=0) <= q999 * (1 + 1e-6), (seq.labels[j], a, b)
+    (line,) = [str(w.message) for w in caught if "touch a trial end" in str(w.message)]
+    spatial, time_, left = (int(x) for x in
+                            re.findall(r"(\d+) (?:sample\(s\) filled|extrapolated|beyond)", line))
+    assert left == int((seq.mask & ~fin).sum()) > 0
+    ends = np.zeros_like(seq.mask)                   # the fill refits the file's interpolations
+    for j, a, b in metrics.gap_runs(seq.mask | seq.meta["filled"]):
+        ends[a:b, j] = (a == 0) != (b == T)
+    donors = out.meta["fill_info"]["constraints"].rigid_done
+    assert spatial + time_ + left == int((ends & ~donors).sum())

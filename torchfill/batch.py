@@ -103,7 +103,8 @@ def qc_rows(seq, filled, std=None, method: str | None = None) -> list[dict]:
     spatial = bool(getattr(base._REGISTRY.get(method or ""), "spatial", False))
     return qc.gap_table(seq.points, filled.points, seq.rate, seq.labels, std,
                         units=seq.units, first_frame=int(getattr(seq, "first_frame", 0) or 0),
-                        support=filled.meta.get("support"), spatial=spatial)
+                        support=filled.meta.get("support"), spatial=spatial,
+                        prior=seq.meta.get("filled"))
 
 
 def write_report(seq, filled, path, title: str, rows=None, plan=None, *, std=None,

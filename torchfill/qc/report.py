@@ -222,10 +222,12 @@ document.querySelectorAll('table.sortable th').forEach(function (th, col) {
 _CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collapse:collapse;"
         "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
         "th{background:#eee;cursor:pointer;user-select:none}th[data-dir=asc]:after{content:' ▲'}"
-        "th[data-dir=desc]:after{content:' ▼'}td.l{text-align:left}tr.check td.v{background:"
+        "th[data-dir=desc]:after{content:' ▼'}td.l,th.l{text-align:left}tr.check td.v{background:"
         "#ffe0b2}tr.reject td.v{background:#ffcdd2}tr.ok td.v{background:#dcedc8}"
         ".legend span{display:inline-block;width:12px;height:12px;margin:0 4px 0 12px;"
-        "vertical-align:middle}figure{margin:10px 0}figcaption{font-size:12px}")
+        "vertical-align:middle}figure{margin:14px 0;padding-left:8px;border-left:4px solid "
+        "#ccc}figure.check{border-color:#ff9800}figure.reject{border-color:#e53935}"
+        "figcaption{font-size:13px;margin-bottom:2px}svg{overflow:visible}")
 
 
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
@@ -279,10 +281,10 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
                 continue
             svg = gap_figure(X, F, std, r, partners=partners_of.get(r["j"]), labels=labels,
                              units=units, first_frame=first_frame)
-            parts.append(f"<figure id='gap-{r['j']}-{r['start']}'>{svg}<figcaption><b>"
-                         f"{esc(r['marker'])}"
-                         f"</b> frames {r['first_frame']}-{r['last_frame']}: <b>{r['verdict']}"
-                         f"</b> — {esc('; '.join(r['reasons']))}</figcaption></figure>")
+            parts.append(f"<figure id='gap-{r['j']}-{r['start']}' class='{r['verdict']}'>"
+                         f"<figcaption><b>{esc(r['marker'])}</b> frames {r['first_frame']}-"
+                         f"{r['last_frame']}: <b>{r['verdict']}</b> — "
+                         f"{esc('; '.join(r['reasons']))}</figcaption>{svg}</figure>")
     cols = [("marker", "marker", "l"), ("first_frame", "first frame", ""),
             ("last_frame", "last frame", ""), ("frames", "frames", ""), ("kind", "kind", "l"),
             ("est_rmse", f"est. RMS error ({u})", ""), ("max_step", f"max step ({u})", ""),
@@ -292,7 +294,8 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
             ("reasons", "reasons", "l")]
     parts.append("<h2>All gaps</h2><p>Click a column head to sort.</p>"
                  "<table class='sortable'><thead><tr>"
-                 + "".join(f"<th>{head}</th>" for _, head, _ in cols) + "</tr></thead><tbody>")
+                 + "".join(f"<th class='{cls}'>{head}</th>" for _, head, cls in cols)
+                 + "</tr></thead><tbody>")
     for r in sorted(rows, key=lambda r: (_ORDER[r["verdict"]], r["j"], r["start"])):
         cells = []
         for key, _, cls in cols:
