@@ -457,7 +457,9 @@ def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tenso
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
-    """Training recordings as tensors whose markers match ``data``'s kept markers, in order."""
+    """Training recordings as tensors whose markers match ``data``'s kept markers, in order: a
+    MarkerSequence by label (markers it lacks are NaN, with a warning), in ``data``'s units and
+    at its rate (nearest frame); an array as it is."""
     data_shape = data.points.shape if isinstance(data, MarkerSequence) else (
         data.shape if hasattr(data, "shape") else np.shape(data))
     D = data_shape[2]                                                          # coordinates
@@ -470,13 +472,7 @@ def _align_training(training, data, keep: list[int], n_markers: int) -> list[tor
             if labels is None:
                 raise ValueError("training recordings given as MarkerSequence need labelled data: "
                                  "pass a MarkerSequence to fill(), or arrays as training")
-            own = {name: i for i, name in enumerate(item.short_labels())}
-            absent = [name for name in (labels[j] for j in keep) if name not in own]
-            if absent:
-                name = item.source.name if item.source else "training recording"
-                raise ValueError(f"{name}: lacks {len(absent)} marker(s) of the recording to fill: "
-                                 f"{', '.join(absent[:8])}{' ...' if len(absent) > 8 else ''}")
-            item = item.points[:, [own[labels[j]] for j in keep]]
+            item = _matched(item, data, [labels[j] for j in keep])
         else:
             item = np.asarray(item.detach().cpu() if isinstance(item, torch.Tensor) else item,
                               dtype=np.float64)
@@ -486,6 +482,30 @@ def _align_training(training, data, keep: list[int], n_markers: int) -> list[tor
             item = item[:, keep]
         aligned.append(torch.from_numpy(np.array(item, dtype=np.float64)))
     return aligned
+
+
+def _matched(item: MarkerSequence, data: MarkerSequence, names: list[str]) -> np.ndarray:
+    """``item``'s points for the markers ``names`` (NaN for those it lacks, with a warning), in
+    ``data``'s units, resampled to ``data``'s rate on the nearest frame; a new array."""
+    own = {name: i for i, name in enumerate(item.short_labels())}
+    have = [j for j, name in enumerate(names) if name in own]
+    source = item.source.name if item.source else "training recording"
+    if not have:
+        raise ValueError(f"{source}: shares no marker label with the recording to fill")
+    if len(have) < len(names):
+        absent = [name for name in names if name not in own]
+        warnings.warn(f"{source}: lacks {len(absent)} marker(s) of the recording to fill, learned "
+                      f"from the recording alone: {', '.join(absent[:8])}"
+                      f"{' ...' if len(absent) > 8 else ''}", UserWarning, stacklevel=4)
+    points = np.full((item.n_frames, len(names), item.points.shape[2]), np.nan)
+    points[:, have] = item.points[:, [own[names[j]] for j in have]]
+    points *= per_mm(data.units) / per_mm(item.units)
+    if item.rate and data.rate and abs(item.rate - data.rate) > 1e-9 * data.rate:
+        T = max(1, int(round(item.n_frames * data.rate / item.rate)))
+        frames = np.minimum(np.round(np.arange(T) * item.rate / data.rate).astype(int),
+                            item.n_frames - 1)
+        points = points[frames]
+    return points
 
 
 def _as_tensor(data) -> tuple[torch.Tensor, str]:
