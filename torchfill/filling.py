@@ -75,9 +75,15 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         Passing them as keyword arguments of ``fill()`` still works for one release, with a
         DeprecationWarning.
     training : MarkerSequence, ndarray or a list of them, optional
-        Training recordings for the methods that take them (the PCA methods): MarkerSequences are
-        matched to ``data`` by marker label (``Subject:`` prefixes ignored), arrays must already
-        have ``data``'s markers in order.
+        Other recordings of the same marker set -- the subject's other trials -- for the methods
+        that take them: the spatial models (``pma``, ``li``, ``lpr``, ``lgrnn``, ``glr``,
+        ``pca_gloersen``) learn from their observed frames too (see
+        :mod:`torchfill.solvers.session`), ``auto`` adds those as candidates ``NAME+session``
+        that its hold-out weighs against the recording's own, ``pca_train``/``pca_blackout``
+        take them as their training set. MarkerSequences are matched to ``data`` by marker label
+        (``Subject:`` prefixes ignored; markers one lacks are NaN there, with a warning; none in
+        common is an error), put in ``data``'s units and resampled to its rate (nearest frame);
+        arrays must already have ``data``'s markers in order. They are never changed.
     mask : array (T, J) of bool, optional
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+import numpy as np
 import torch
 
 Tensor = torch.Tensor
 
 #: Training frames stacked at most (all training recordings together): the spatial models read
 #: at most 1000 frames for their regressions, and more frames only slow the filters and PCA.
-TRAINING_FRAMES = 3000
+TRAINING_FRAMES = 2000
 #: Training frames are taken in runs of this many consecutive frames (filters need neighbours).
 BLOCK = 100
 
@@ -40,18 +41,21 @@ def training_rows(training: Sequence[Tensor], mu: Tensor, sigma: Tensor,
         return []
     if total > budget:
         share = budget / total
-        items = [_blocks(t, max(block, int(round(t.shape[0] * share))), block) for t in items]
+        items = [spread_runs(t, max(block, int(round(t.shape[0] * share))), block)
+                 for t in items]
     return [(t - mu) / sigma for t in items]
 
 
-def _blocks(t: Tensor, keep: int, block: int) -> Tensor:
-    """``keep`` frames of ``t`` in runs of ``block`` evenly spaced (all of ``t`` if shorter)."""
+def spread_runs(t, keep: int, block: int = BLOCK):
+    """``keep`` frames of ``t`` (a tensor or an array, time first) in runs of ``block`` frames
+    evenly spaced (all of ``t`` if it is shorter)."""
     T = t.shape[0]
     if keep >= T:
         return t
     n = max(1, keep // block)
-    starts = torch.linspace(0, T - block, n).round().long().tolist() if T > block else [0]
-    return torch.cat([t[s:s + block] for s in starts])
+    starts = [round(i * (T - block) / max(n - 1, 1)) for i in range(n)] if T > block else [0]
+    parts = [t[s:s + block] for s in starts]
+    return torch.cat(parts) if isinstance(t, Tensor) else np.concatenate(parts)
 
 
 def stack(P: Tensor, missing: Tensor, train: Sequence[Tensor]
