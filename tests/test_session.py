@@ -13,7 +13,8 @@ from torchfill.cli import main
 from torchfill.metrics import rmse_missing
 
 
-X
+#: RMSE bounds (mm) with the session on the cmu85 case; measured alone -> session: pma 12.55 ->
+#: 8.45, glr 18.87 -> 9.44, the default 23.01 -> 8.29
 BOUND = {"pma": 10.0, "glr": 11.0, "default": 10.0}
 
 
