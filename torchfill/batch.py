@@ -36,6 +36,8 @@ class Job:
     report: str | None = None
     std: str | None = None
     read_options: dict = field(default_factory=dict)
+    #: training recordings already read (the other trials of a ``--session``: see :func:`session`)
+    session: tuple = ()
 
 
 def expand(items: list[str]) -> list[Path]:
@@ -149,8 +151,8 @@ def fill_file(job: Job) -> dict:
             seq = torchfill.read(job.input, **job.read_options)
             row.update(frames=seq.n_frames, markers=seq.n_markers, missing=int(seq.mask.sum()))
             params = dict(job.params)
-            if job.training:
-                params["training"] = [torchfill.read(p) for p in job.training]
+            if job.training or job.session:
+                params["training"] = [*job.session, *(torchfill.read(p) for p in job.training)]
             plan.confirm_inputs()
             want_std = bool(job.std or job.report)          # the qc verdict uses it
             out = torchfill.fill(seq, job.method, max_gap=job.max_gap,
@@ -174,6 +176,43 @@ def fill_file(job: Job) -> dict:
         row["error"] = text if text.startswith(job.input) else f"{job.input}: {text}"
     row["seconds"] = round(time.perf_counter() - start, 3)
     return row
+
+
+def session(inputs: list[Path], read_options: list[dict] | None = None) -> dict[Path, tuple]:
+    """``--session``: per input, the other inputs of its marker set as training recordings. Each
+    input is read once and cut to its share of the training frames one fill stacks
+    (:data:`torchfill.solvers.session.TRAINING_FRAMES` over the others of its marker set, in
+    evenly spread runs), so a batch holds one pool per marker set, not a copy per pair of files,
+    and a fill costs the same whatever the size of the session. An input that cannot be read is
+    left out of the pool (its own fill reports the error)."""
+    import numpy as np
+
+    import torchfill
+    from .solvers.session import BLOCK, TRAINING_FRAMES, spread_runs
+
+    read_options = read_options or [{}] * len(inputs)
+    groups: dict[frozenset, list] = {}
+    for path, options in zip(inputs, read_options):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                seq = torchfill.read(path, **options)
+        except Exception:  # noqa: BLE001 -- reported by the file's own fill
+            continue
+        groups.setdefault(frozenset(seq.short_labels()), []).append((path, seq))
+    pool: dict[Path, tuple] = {}
+    for members in groups.values():
+        share = TRAINING_FRAMES // max(1, len(members) - 1)
+        cut = []
+        for path, seq in members:
+            seen = np.isfinite(seq.points).all(axis=2).any(axis=1)    # frames with a marker seen
+            points = spread_runs(seq.points[seen], max(BLOCK, share), BLOCK)
+            part = seq.with_points(np.asarray(points))
+            part.meta = {}
+            cut.append((path, part))
+        for path, _ in members:
+            pool[path] = tuple(part for other, part in cut if other != path)
+    return pool
 
 
 def _texts(caught) -> list[str]:
@@ -439,5 +478,5 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "side_name",
-           "std_csv", "table", "write_report"]
+__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "session",
+           "side_name", "std_csv", "table", "write_report"]

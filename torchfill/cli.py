@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 from contextlib import contextmanager
 import json
 import os
@@ -145,6 +146,13 @@ def _one_line(err: BaseException) -> str:
 def _cmd_fill(args) -> int:
     import torchfill
 
+    if args.training:                                 # folders as the recordings they hold
+        from torchfill.batch import expand
+        args.training = [str(path) for path in expand(args.training)]
+        if not args.training:
+            raise ValueError("--training: no recordings found")
+    if args.session and not (len(args.input) > 1 or args.out_dir):
+        raise ValueError("--session fills a batch: give several inputs and --out-dir DIR")
     if len(args.input) > 1 or args.out_dir or args.ray:
         return _cmd_fill_batch(args)
     src = Path(args.input[0])
@@ -322,7 +330,7 @@ def _fill_options(args, src) -> tuple[str, dict]:
             base.get_solver(method, **params)
     except (ValueError, TypeError) as err:
         raise ValueError(f"{src}{_one_line(err)}") from None
-    if args.training and "training" not in cls.fit_data:
+    if (args.training or getattr(args, "session", False)) and "training" not in cls.fit_data:
         takes = [m for m in names if "training" in base._REGISTRY[m].fit_data]
         raise ValueError(f"{src}{method} takes no training data; methods that do: "
                          f"{', '.join(takes)}")
@@ -467,6 +475,7 @@ def _cmd_fill_batch(args) -> int:
     method, options = _fill_options(args, None)
     out_dir = make_folder(args.out_dir)
     side = {"report": _side_folder(args.report, "--report"), "std": _side_folder(args.std, "--std")}
+    options_of = {src: _pose_options(args, src) for src in inputs}
     jobs = []
     with Outputs() as plan:                           # the whole batch checked before any work
         for path in args.training or ():
@@ -485,7 +494,10 @@ def _cmd_fill_batch(args) -> int:
                     plan.add_output(path, what)
             jobs.append(batch.Job(str(src), str(dst), method, options, args.max_gap,
                                   tuple(args.training or ()), report=report and str(report),
-                                  std=std and str(std), read_options=_pose_options(args, src)))
+                                  std=std and str(std), read_options=options_of[src]))
+    if args.session:        # the batch's other files of each marker set as training, read once
+        pool = batch.session(inputs, [options_of[src] for src in inputs])
+        jobs = [dataclasses.replace(job, session=pool.get(src, ())) for job, src in zip(jobs, inputs)]
     order = {job.input: i for i, job in enumerate(jobs)}
     rows = []
     started = time.time()
@@ -796,7 +808,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=int, metavar="FRAMES",
                    help="fill longer recordings in overlapping windows of this many frames "
                         "(default 6000; 0: the whole recording at once)")
-    p.add_argument("--training", nargs="+", metavar="FILE", help="training recordings (pca_*)")
+    p.add_argument("--training", nargs="+", metavar="FILE",
+                   help="training recordings (files or folders): other trials of the same marker "
+                        "set whose observed samples the spatial models and the default learn from "
+                        "(methods with training data: 'torchfill methods -v')")
+    p.add_argument("--session", action="store_true",
+                   help="with several inputs: every input is training for the others of its "
+                        "marker set (their observed samples only; read once, one pool per "
+                        "marker set)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")

@@ -76,9 +76,15 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         Passing them as keyword arguments of ``fill()`` still works for one release, with a
         DeprecationWarning.
     training : MarkerSequence, ndarray or a list of them, optional
-        Training recordings for the methods that take them (the PCA methods): MarkerSequences are
-        matched to ``data`` by marker label (``Subject:`` prefixes ignored), arrays must already
-        have ``data``'s markers in order.
+        Other recordings of the same marker set -- the subject's other trials -- for the methods
+        that take them: the spatial models (``pma``, ``li``, ``lpr``, ``lgrnn``, ``glr``,
+        ``pca_gloersen``) learn from their observed frames too (see
+        :mod:`torchfill.solvers.session`), ``auto`` adds those as candidates ``NAME+session``
+        that its hold-out weighs against the recording's own, ``pca_train``/``pca_blackout``
+        take them as their training set. MarkerSequences are matched to ``data`` by marker label
+        (``Subject:`` prefixes ignored; markers one lacks are NaN there, with a warning; none in
+        common is an error), put in ``data``'s units and resampled to its rate (nearest frame);
+        arrays must already have ``data``'s markers in order. They are never changed.
     mask : array (T, J) of bool, optional
         Extra samples to treat as missing (True = missing), on top of the NaNs.
     max_gap : int, optional
@@ -543,7 +549,9 @@ def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tenso
 
 
 def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
-    """Training recordings as tensors whose markers match ``data``'s kept markers, in order."""
+    """Training recordings as tensors whose markers match ``data``'s kept markers, in order: a
+    MarkerSequence by label (markers it lacks are NaN, with a warning), in ``data``'s units and
+    at its rate (nearest frame); an array as it is."""
     data_shape = data.points.shape if isinstance(data, MarkerSequence) else (
         data.shape if hasattr(data, "shape") else np.shape(data))
     D = data_shape[2]                                                          # coordinates
@@ -556,13 +564,7 @@ def _align_training(training, data, keep: list[int], n_markers: int) -> list[tor
             if labels is None:
                 raise ValueError("training recordings given as MarkerSequence need labelled data: "
                                  "pass a MarkerSequence to fill(), or arrays as training")
-            own = {name: i for i, name in enumerate(item.short_labels())}
-            absent = [name for name in (labels[j] for j in keep) if name not in own]
-            if absent:
-                name = item.source.name if item.source else "training recording"
-                raise ValueError(f"{name}: lacks {len(absent)} marker(s) of the recording to fill: "
-                                 f"{', '.join(absent[:8])}{' ...' if len(absent) > 8 else ''}")
-            item = item.points[:, [own[labels[j]] for j in keep]]
+            item = _matched(item, data, [labels[j] for j in keep])
         else:
             item = np.asarray(item.detach().cpu() if isinstance(item, torch.Tensor) else item,
                               dtype=np.float64)
@@ -572,6 +574,30 @@ def _align_training(training, data, keep: list[int], n_markers: int) -> list[tor
             item = item[:, keep]
         aligned.append(torch.from_numpy(np.array(item, dtype=np.float64)))
     return aligned
+
+
+def _matched(item: MarkerSequence, data: MarkerSequence, names: list[str]) -> np.ndarray:
+    """``item``'s points for the markers ``names`` (NaN for those it lacks, with a warning), in
+    ``data``'s units, resampled to ``data``'s rate on the nearest frame; a new array."""
+    own = {name: i for i, name in enumerate(item.short_labels())}
+    have = [j for j, name in enumerate(names) if name in own]
+    source = item.source.name if item.source else "training recording"
+    if not have:
+        raise ValueError(f"{source}: shares no marker label with the recording to fill")
+    if len(have) < len(names):
+        absent = [name for name in names if name not in own]
+        warnings.warn(f"{source}: lacks {len(absent)} marker(s) of the recording to fill, learned "
+                      f"from the recording alone: {', '.join(absent[:8])}"
+                      f"{' ...' if len(absent) > 8 else ''}", UserWarning, stacklevel=4)
+    points = np.full((item.n_frames, len(names), item.points.shape[2]), np.nan)
+    points[:, have] = item.points[:, [own[names[j]] for j in have]]
+    points *= per_mm(data.units) / per_mm(item.units)
+    if item.rate and data.rate and abs(item.rate - data.rate) > 1e-9 * data.rate:
+        T = max(1, int(round(item.n_frames * data.rate / item.rate)))
+        frames = np.minimum(np.round(np.arange(T) * item.rate / data.rate).astype(int),
+                            item.n_frames - 1)
+        points = points[frames]
+    return points
 
 
 def _as_tensor(data) -> tuple[torch.Tensor, str]:

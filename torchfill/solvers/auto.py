@@ -79,6 +79,12 @@ INTERIOR_SHARE = 0.25
 #: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
 #: has no weight.
 PARTIAL = {"rigid": {"fallback": False, "max_error": 0.015}}
+#: With training recordings (fit data ``training``: the subject's other trials), the spatial
+#: candidates learn from their frames too (:mod:`torchfill.solvers.session`), under the name
+#: ``NAME+session``; the ones in ``ALONE`` also stay in as they were, so that the hold-out can
+#: still choose the recording's own evidence where another trial misleads (a different motion).
+SESSION = "+session"
+ALONE = ("li", "pma", "pca_gloersen")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -282,9 +288,11 @@ class Auto(Solver):
         super().__init__(**kwargs)
         known = set(available())
         for name in self.candidates or ():
-            if not isinstance(name, str) or name not in known or name == self.name:
+            base = name.removesuffix(SESSION) if isinstance(name, str) else name
+            if not isinstance(name, str) or base not in known or base == self.name:
                 raise ValueError(f"{self.name}: candidates expected registered method names "
-                                 f"other than 'auto', found {name!r}")
+                                 f"other than 'auto' (NAME{SESSION}: NAME with the training "
+                                 f"data), found {name!r}")
         for name, p in (self.candidate_params or {}).items():
             if not isinstance(p, dict):
                 raise ValueError(f"{self.name}: candidate_params expected {{name: dict}}, "
@@ -296,7 +304,18 @@ class Auto(Solver):
         names = [name for name in DEFAULT_CANDIDATES if name in available()]
         if hasattr(self, "Omega_") and interior_share(self.Omega_) < INTERIOR_SHARE:
             names = [name for name in names if name not in INTERIOR]
+        if getattr(self, "fit_data_", {}).get("training") is not None:
+            names = [twin for name in names for twin in self._session_twins(name)]
         return names
+
+    @staticmethod
+    def _session_twins(name: str) -> list[str]:
+        """With training data: a spatial default candidate as ``NAME+session`` (and as itself
+        too when in ``ALONE``); any other as itself."""
+        solver = get_solver(name)
+        if not solver.spatial or "training" not in solver.fit_data:
+            return [name]
+        return [name, name + SESSION] if name in ALONE else [name + SESSION]
 
     # -- contract --------------------------------------------------------------------------
     def _initialize(self) -> None:
@@ -390,11 +409,15 @@ class Auto(Solver):
         """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3)."""
         T, J = fit_missing.shape
         X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
-        params = {"seed": self.seed, **PARTIAL.get(name, {}),
-                  **(self.candidate_params or {}).get(name, {})}
-        solver = get_solver(name, **params)
+        method = name.removesuffix(SESSION)
+        params = {"seed": self.seed, **PARTIAL.get(method, {}),
+                  **(self.candidate_params or {}).get(method, {})}
+        solver = get_solver(method, **params)
+        takes = [k for k in solver.fit_data              # a spatial default candidate learns
+                 if k != "training" or name.endswith(SESSION)     # from training as +session
+                 or not solver.spatial or name in (self.candidates or ())]
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
-                if k in solver.fit_data}                  # training data in the fit's units
+                if k in takes}                            # training data in the fit's units
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)

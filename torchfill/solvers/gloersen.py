@@ -30,6 +30,7 @@ from __future__ import annotations
 import torch
 
 from .. import ops
+from . import session
 from .base import Param, Solver, register
 
 Tensor = torch.Tensor
@@ -95,8 +96,11 @@ def reconstruct(N: Tensor, Mz: Tensor, cols: Tensor, w: Tensor, min_cum_sv: floa
 
 
 def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, mm_weight: float,
-                            distal_threshold: float, min_cum_sv: float, min_markers: int = 3) -> Tensor:
+                            distal_threshold: float, min_cum_sv: float, min_markers: int = 3,
+                            fill: Tensor | None = None) -> Tensor:
     """R2 strategy on ``P`` (T, J, d), ``missing`` (T, J): every gap filled; observed kept.
+    ``fill``: the missing samples to fill (default all; training rows of a stack, see
+    :mod:`torchfill.solvers.session`, are left as they are and only train the bases).
 
     ``weight_scale`` is relative to the mean distance between markers (the original's 200 mm
     over the ~700 mm of a full-body set is 0.28). A marker whose gaps leave fewer than
@@ -104,7 +108,8 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
     jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead."""
     T, J, d = P.shape                       # d = 3 (markers) or 2 (image keypoints)
     out = P.clone()
-    gapped = torch.nonzero(missing.any(0)).flatten()
+    fill = missing if fill is None else fill
+    gapped = torch.nonzero(fill.any(0)).flatten()
     if len(gapped) == 0:
         return out
     c = body_centre(P, missing)
@@ -114,8 +119,8 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
     lin = ops.interp_linear(torch.where(missing[..., None], 0.0, Y).reshape(T, -1),
                             (~missing).repeat_interleave(d, dim=1)).reshape(T, J, d)
     for g, i in enumerate(gapped.tolist()):
-        frames = missing[:, i]
-        drop = missing.any(0) & (D[g] > distal_threshold * D[g].mean())    # distal gapped markers
+        frames = fill[:, i]
+        drop = fill.any(0) & (D[g] > distal_threshold * D[g].mean())       # distal gapped markers
         drop |= missing[frames].any(0)                                     # overlapping gaps
         drop[i] = False
         others = ~drop
@@ -148,6 +153,9 @@ class PCAGloersen(Solver):
     name = "pca_gloersen"
     iterative = False
     spatial = True
+    #: fit(X, mask, training=[...]): other recordings of the same markers, in X's units, whose
+    #: complete frames train the PCA bases too (see :mod:`torchfill.solvers.session`)
+    fit_data = ("training",)
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "weight_scale": Param(0.28, float, low=0.0, low_open=True,
@@ -166,9 +174,11 @@ class PCAGloersen(Solver):
         missing = ~self.Omega_.all(dim=-1)
         P = torch.where(missing[..., None], torch.full((), float("nan"), dtype=self.M_.dtype,
                                                        device=self.M_.device), self.M_)
-        self.X_ = predict_missing_markers(P, missing, weight_scale=self.weight_scale,
+        train = session.training_rows(self.fit_data_.get("training", ()), self.mu_, self.sigma_)
+        P_all, missing_all, todo, _ = session.stack(P, missing, train)
+        self.X_ = predict_missing_markers(P_all, missing_all, fill=todo, weight_scale=self.weight_scale,
                                           mm_weight=self.mm_weight, distal_threshold=self.distal_threshold,
-                                          min_cum_sv=self.min_cum_sv)
+                                          min_cum_sv=self.min_cum_sv)[:P.shape[0]]
         return {"delta": 0.0}
 
     def _estimate(self) -> Tensor:

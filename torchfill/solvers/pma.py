@@ -49,6 +49,7 @@ import torch
 
 from .. import ops
 from .base import Param, Solver, register
+from . import session
 from .gloersen import body_centre, predict_missing_markers
 
 Tensor = torch.Tensor
@@ -194,8 +195,9 @@ class _Local:
     """One reference triple's local frame and its trained models (LPR, LGRNN) for marker ``k``."""
 
     def __init__(self, Y: Tensor, k: int, triple: tuple[int, int, int], filtered,
-                 smooth: float, models: set[str]):
+                 smooth: float, models: set[str], T: int | None = None):
         p0, p1, p2, p3 = (filtered(j) for j in (k, *triple))
+        self.T = Y.shape[0] if T is None else T          # the recording's rows (then training)
         self.raw = [Y[:, j] for j in triple]
         self.R = local_frame(p1, p2, p3)
         self.p1 = p1
@@ -227,12 +229,12 @@ class _Local:
         self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
 
     def _edges(self, a: int, b: int):
-        T = self.p0p.shape[0]
+        T = self.T
         return (self.p0p[a - 1] if a > 0 else None, self.p0p[b] if b < T else None)
 
     def predict(self, model: str, a: int, b: int) -> Tensor:
         """Gap rows [a, b) of marker k in global (centred) coordinates by one local model."""
-        T = self.p0p.shape[0]
+        T = self.T
         lo, hi = max(a - 1, 0), min(b + 1, T)
         if model == "li":
             L = ops.interp_linear(torch.nan_to_num(self.p0p[lo:hi]),
@@ -249,10 +251,12 @@ class _Local:
         return to_global(L, self.p1[a:b], self.R[a:b])
 
 
-def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict) -> Tensor | None:
+def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
+             T: int | None = None) -> Tensor | None:
     """Global linear regression of marker ``k`` on every marker observed over [a-1, b] (Tits et
-    al. model 4), with the time constraint; None with fewer than 4 such markers."""
-    T = Y.shape[0]
+    al. model 4), with the time constraint; None with fewer than 4 such markers. ``T``: the
+    recording's rows when training rows follow them (they train the regression only)."""
+    T = Y.shape[0] if T is None else T
     lo, hi = max(a - 1, 0), min(b + 1, T)
     refs = ~missing[lo:hi].any(0)
     refs[k] = False
@@ -260,7 +264,7 @@ def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict) ->
         return None
     key = tuple(torch.nonzero(refs).flatten().tolist())
     if key not in cache:
-        X = torch.cat([torch.ones_like(Y[:, 0, :1]), Y[:, refs].reshape(T, -1)], 1)
+        X = torch.cat([torch.ones_like(Y[:, 0, :1]), Y[:, refs].reshape(Y.shape[0], -1)], 1)
         rows = torch.nonzero(~missing[:, k] & ~missing[:, refs].any(1)).flatten()
         if rows.numel() < 4:
             return None
@@ -275,9 +279,9 @@ def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict) ->
     return ramp(pred[a - lo:a - lo + b - a], *border_offsets(edges, truth))
 
 
-def wpca_fill(W: Tensor, Y: Tensor, k: int, a: int, b: int) -> Tensor:
+def wpca_fill(W: Tensor, Y: Tensor, k: int, a: int, b: int, T: int | None = None) -> Tensor:
     """Gløersen fill of the gap with the time constraint (offsets against the first/last row)."""
-    T = Y.shape[0]
+    T = Y.shape[0] if T is None else T
     pred = W[a:b, k]
     D1 = pred[0] - Y[a - 1, k] if a > 0 else None
     D2 = pred[-1] - Y[b, k] if b < T else None
@@ -299,25 +303,31 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
 
 
 def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smooth: float,
-              wpca: dict, space: bool) -> Tensor:
+              wpca: dict, space: bool, train: list[Tensor] = ()) -> Tensor:
     """The Tits et al. pipeline on ``P`` (T, J, 3; NaN where ``missing``) with ``models``;
-    ``window`` < 4 frames: no filtering anywhere."""
+    ``window`` < 4 frames: no filtering anywhere. ``train``: other recordings of the same markers
+    (T_i, J, 3; NaN where not observed, in ``P``'s units) whose frames train the models too
+    (see :mod:`torchfill.solvers.session`); only ``P``'s gaps are filled."""
+    T0 = P.shape[0]
+    P, missing, todo, pieces = session.stack(P, missing, train)
     T, J, _ = P.shape
     c = body_centre(P, missing)
     Y = P - c[:, None]
     miss = missing.clone()
-    W = predict_missing_markers(P, missing, **wpca) - c[:, None] if "wpca" in models else None
+    W = None
+    if "wpca" in models:
+        W = predict_missing_markers(P, missing, fill=todo, **wpca) - c[:, None]
     local_models = models & {"li", "lpr", "lgrnn"}
     score = rigidity(Y, missing) if local_models else None
     presence = (~missing).sum(0)
     gapped = [k for k in torch.argsort(presence, descending=True, stable=True).tolist()
-              if bool(missing[:, k].any()) and bool((~missing[:, k]).any())]
+              if bool(todo[:, k].any()) and bool((~missing[:, k]).any())]
     cache: dict[int, Tensor] = {}
 
     def filtered(j: int) -> Tensor:
         """Marker ``j`` filtered along time (recomputed once it has been filled)."""
         if j not in cache:
-            cache[j] = symfilter(Y[:, j], window)
+            cache[j] = session.piecewise(lambda y: symfilter(y, window), Y[:, j], pieces)
         return cache[j]
 
     for k in gapped:
@@ -325,8 +335,8 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
             order = torch.argsort(score[k]).tolist()
             filtered(k)                                  # as it was before its gaps are filled
         glr_cache, local_cache = {}, {}
-        for _, a, b in ops.runs(missing[:, k:k + 1]):
-            lo, hi = max(a - 1, 0), min(b + 1, T)
+        for _, a, b in ops.runs(todo[:T0, k:k + 1]):
+            lo, hi = max(a - 1, 0), min(b + 1, T0)
             preds, local, valid = [], None, []
             if local_models:
                 present = (~miss[lo:hi].any(0) & torch.isfinite(score[k])).tolist()
@@ -334,7 +344,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
             if len(valid) >= 3:
                 triple = tuple(valid[:3])
                 if triple not in local_cache:
-                    local_cache[triple] = _Local(Y, k, triple, filtered, smooth, models)
+                    local_cache[triple] = _Local(Y, k, triple, filtered, smooth, models, T0)
                 local = local_cache[triple]
                 if local.ok:
                     preds += [local.predict(m, a, b) for m in ("li", "lpr", "lgrnn") if m in models]
@@ -342,11 +352,11 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
                     local = None
             glob = []
             if "glr" in models:
-                g = glr_fill(Y, miss, k, a, b, glr_cache)
+                g = glr_fill(Y, miss, k, a, b, glr_cache, T0)
                 if g is not None:
                     glob.append(g)
             if W is not None:
-                glob.append(wpca_fill(W, Y, k, a, b))
+                glob.append(wpca_fill(W, Y, k, a, b, T0))
             if local is not None:
                 fill = average(preds + glob, local, a, b, window)
                 if space:
@@ -358,10 +368,11 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
             Y[a:b, k] = fill
             miss[a:b, k] = False
         cache.pop(k, None)
-    rest = miss.unsqueeze(-1).expand_as(Y).reshape(T, -1)
-    Y = ops.interp_linear(torch.nan_to_num(Y).reshape(T, -1), ~rest).reshape(T, J, 3)
+    Y, miss, c, P, missing = Y[:T0], miss[:T0], c[:T0], P[:T0], missing[:T0]
+    rest = miss.unsqueeze(-1).expand_as(Y).reshape(T0, -1)
+    Y = ops.interp_linear(torch.nan_to_num(Y).reshape(T0, -1), ~rest).reshape(T0, J, 3)
     out = Y + c[:, None]
-    out = symfilter(out.reshape(T, -1), window).reshape(T, J, 3)
+    out = symfilter(out.reshape(T0, -1), window).reshape(T0, J, 3)
     return torch.where(missing[..., None], out, P)
 
 
@@ -370,6 +381,9 @@ class _Tits(Solver):
 
     iterative = False
     spatial = True
+    #: fit(X, mask, training=[...]): other recordings of the same markers, in X's units, whose
+    #: frames train the models too (see :mod:`torchfill.solvers.session`)
+    fit_data = ("training",)
     models: ClassVar[frozenset[str]] = frozenset()
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
@@ -388,8 +402,9 @@ class _Tits(Solver):
         P = torch.where(missing[..., None], torch.full((), float("nan"), dtype=self.M_.dtype,
                                                        device=self.M_.device), self.M_)
         wpca = dict(weight_scale=0.28, mm_weight=0.02, distal_threshold=0.5, min_cum_sv=0.99)
+        train = session.training_rows(self.fit_data_.get("training", ()), self.mu_, self.sigma_)
         self.X_ = tits_fill(P, missing, set(self.models), window=self.window if self.filtering else 1,
-                            smooth=self.smooth, wpca=wpca, space=self.space_constraint)
+                            smooth=self.smooth, wpca=wpca, space=self.space_constraint, train=train)
         return {"delta": 0.0}
 
     def _estimate(self) -> Tensor:
