@@ -91,7 +91,7 @@ def test_cli_writes_std_csv(tmp_path):
     out, std_path, report = tmp_path / "filled.npz", tmp_path / "std.csv", tmp_path / "qc.html"
     assert main(["fill", str(path), "-o", str(out), "-m", "auto", "-q", "--std", str(std_path),
                  "--report", str(report), "-p", 'candidates=["pchip","svt"]']) == 0
-    assert "<th>est. RMS error (mm)</th>" in report.read_text()   # the qc report shows it per gap
+    assert ">est. RMS error (mm)</th>" in report.read_text()     # the qc report shows it per gap
     table = np.genfromtxt(std_path, delimiter=",", names=True)
     assert table.dtype.names[0] == "frame" and len(table) == X.shape[0]
     S = np.column_stack([table[n] for n in table.dtype.names[1:]])
