@@ -13,12 +13,16 @@ samples gapfill fills; the table gives each ratio to gapfill's RMSE. Then the ag
 data-found segments with the named tables on the complete recordings, and the time of ``rigid``
 on 3 000 frames x 41 markers::
 
-    OMP_NUM_THREADS=1 python scripts/eval_segments.py            # all cases
+    OMP_NUM_THREADS=1 python scripts/eval_segments.py --csv experiments/results/segments/cases.csv \
+        --doc docs/segments.md                                     # all cases, table into the page
     OMP_NUM_THREADS=1 python scripts/eval_segments.py --limit 6 --no-default
+    OMP_NUM_THREADS=1 python scripts/eval_segments.py --reuse experiments/results/segments/cases.csv
+                                                      # the peers' columns from an earlier run
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 import time
 import warnings
@@ -32,6 +36,7 @@ from torchfill.segments import Segments, agreement
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import real_gap_suite  # noqa: E402
+from docblock import write_block, write_csv  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 AGREEMENT = ("biomechzoo_hockey_wrist_shot_009.c3d", "osim_gait2392_subject01_walk1.trc",
@@ -118,76 +123,141 @@ def rmse(F, truth, on) -> float:
     return float(np.sqrt(np.mean(np.sum((F[on] - truth[on]) ** 2, axis=1))))
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--limit", type=int, default=None, help="first N cases only")
-    ap.add_argument("--no-default", action="store_true", help="skip the default fill (slow)")
-    ap.add_argument("--no-ktk", action="store_true")
-    args = ap.parse_args(argv)
-    folder = data_dir(REPO)
-    cases = real_gap_suite.cases(folder)[:args.limit]
-    cols = ["gapfill", "ktk", "rigid", "rigid_data", "default"]
-    print(f"{'case':58s} {'n':>6s} " + " ".join(f"{c:>10s}" for c in cols) + "   ratios to gapfill")
-    ratios = {c: [] for c in cols}
-    for case in cases:
-        truth = case.truth.points
-        seq = case.gapped()
-        G = seq.points
-        labels = list(seq.labels)
-        seg_idx = Segments.from_names(labels).indices(labels)
-        res = {}
-        t = time.perf_counter()
-        GF = gapfill_fill(G, seg_idx)
-        on = np.isfinite(GF).all(axis=2) & case.mask
-        res["gapfill"] = rmse(GF, truth, on)
-        if not args.no_ktk:
-            K = ktk_fill(G, seg_idx, seq.rate)
-            kon = on & np.isfinite(K).all(axis=2)
-            res["ktk"] = rmse(K, truth, kon) if kon.sum() == on.sum() else float("nan")
+COLS = ("gapfill", "ktk", "rigid", "rigid_data", "default")
+PEERS = ("gapfill", "ktk")
+
+
+def score(case, methods, reuse: dict) -> dict:
+    """RMSE (mm) of each method on the samples gapfill fills in ``case``; columns in ``reuse``
+    (a row of an earlier CSV) are taken from there (the peers do not change with torchfill)."""
+    truth, seq = case.truth.points, case.gapped()
+    G, labels = seq.points, list(seq.labels)
+    seg_idx = Segments.from_names(labels).indices(labels)
+    GF = gapfill_fill(G, seg_idx)
+    on = np.isfinite(GF).all(axis=2) & case.mask
+    row = {"case": case.name, "n": int(on.sum()), "gapfill": rmse(GF, truth, on)}
+    fills = {
+        "ktk": lambda: ktk_fill(G, seg_idx, seq.rate),
+        "rigid": lambda: torchfill.fill(seq, "rigid", segments="names", constraints=False).points,
+        "rigid_data": lambda: torchfill.fill(G, "rigid", segments="data", constraints=False),
+        "default": lambda: torchfill.fill(seq, extrapolate=None).points,
+    }
+    for m in methods:
+        if m == "gapfill":
+            continue
+        if reuse.get(m, "") not in ("", "nan") and m in PEERS:
+            row[m] = float(reuse[m])
+            continue
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            R = torchfill.fill(seq, "rigid", segments="names", constraints=False).points
-            RD = torchfill.fill(G, "rigid", segments="data", constraints=False)
-            res["rigid"], res["rigid_data"] = rmse(R, truth, on), rmse(RD, truth, on)
-            if not args.no_default:
-                D = torchfill.fill(seq, extrapolate=None).points
-                res["default"] = rmse(D, truth, on)
-        for c in cols:
-            if c in res and res["gapfill"] > 0 and np.isfinite(res[c]):
-                ratios[c].append(res[c] / res["gapfill"])
-        print(f"{case.name[:58]:58s} {int(on.sum()):6d} " +
-              " ".join(f"{res.get(c, np.nan):10.2f}" for c in cols) + "   " +
-              " ".join(f"{res.get(c, np.nan) / res['gapfill']:5.2f}" for c in cols[1:]),
-              flush=True)
-    print("\nratio to gapfill on its samples: mean / worst (cases)")
-    for c in cols[1:]:
-        r = np.asarray(ratios[c])
-        if r.size:
-            print(f"  {c:10s} {r.mean():6.3f} / {r.max():6.3f}  ({r.size})")
-    print("\ndata-found segments vs named tables (membership agreement)")
+            F = fills[m]()
+        hit = on & np.isfinite(F).all(axis=2)
+        row[m] = rmse(F, truth, on) if hit.sum() == on.sum() else float("nan")
+    return row
+
+
+def ratio_table(rows: list[dict], methods) -> tuple[str, dict]:
+    """Markdown table of each method's RMSE and ratio to gapfill per case, and the ratios."""
+    others = [m for m in methods if m != "gapfill"]
+    lines = ["| case | samples | gapfill mm | " + " | ".join(others) + " |",
+             "|---|---:|---:|" + "---:|" * len(others)]
+    ratios = {m: [] for m in others}
+    for r in rows:
+        g = float(r["gapfill"])
+        cells = []
+        for m in others:
+            x = float(r.get(m, np.nan))
+            q = x / g if g > 0 else np.nan
+            if np.isfinite(q):
+                ratios[m].append(q)
+            cells.append(f"{q:.2f}" if np.isfinite(q) else "—")
+        lines.append(f"| {r['case']} | {r['n']} | {g:.2f} | " + " | ".join(cells) + " |")
+    stat = {m: (np.mean(v), np.max(v), len(v)) for m, v in ratios.items() if v}
+    lines.append("| **mean ratio** | | | " + " | ".join(
+        f"**{stat[m][0]:.2f}**" if m in stat else "—" for m in others) + " |")
+    lines.append("| worst ratio | | | " + " | ".join(
+        f"{stat[m][1]:.2f}" if m in stat else "—" for m in others) + " |")
+    return "\n".join(lines), stat
+
+
+def agreement_table(folder: Path) -> str:
+    lines = ["| recording | agreement | found | named |", "|---|---:|---:|---:|"]
     for name in AGREEMENT:
         if not (folder / name).exists():
             continue
         seq = real_gap_suite.complete(folder / name)
         named = Segments.from_names(seq.labels)
         found = Segments.from_data(seq.points, seq.labels)
-        print(f"  {name:42s} {agreement(found, named, seq.labels):5.2f}  "
-              f"({len(found)} found, {len(named)} named)")
-    seq = real_gap_suite.complete(folder / "HDM_bd_01-02_01_120.c3d")
+        lines.append(f"| {name} | {100 * agreement(found, named, seq.labels):.0f} % | "
+                     f"{len(found)} | {len(named)} |")
+    return "\n".join(lines)
+
+
+def timing(folder: Path, repeats: int = 5) -> str:
+    """``rigid`` on the first 3 000 frames of hdm05_bd_05-01 (41 markers) with 20 seeded gaps."""
+    seq = real_gap_suite.complete(folder / "hdm05_bd_05-01_01_120.c3d")
     X = seq.points[:3000].copy()
     rng = np.random.default_rng(0)
     for j in rng.choice(X.shape[1], 20):
         a = rng.integers(0, 2800)
         X[a:a + rng.integers(100, 200), j] = np.nan
-    times = []
-    for _ in range(5):
-        t = time.perf_counter()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             torchfill.fill(seq.with_points(X), "rigid", constraints=False)
-        times.append(time.perf_counter() - t)
-    print(f"\nrigid, 3000 frames x {X.shape[1]} markers, 20 gaps: median {np.median(times):.3f} s "
-          f"(runs {', '.join(f'{x:.3f}' for x in times)})")
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return (f"`rigid`, {X.shape[0]} frames x {X.shape[1]} markers, 20 gaps, one thread: median "
+            f"{np.median(cpu):.3f} s CPU, {np.median(wall):.3f} s wall (of {repeats} runs)")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--limit", type=int, default=None, help="first N cases only")
+    ap.add_argument("--only", help="comma-separated substrings of case names to run")
+    ap.add_argument("--no-default", action="store_true", help="skip the default fill (slow)")
+    ap.add_argument("--no-ktk", action="store_true")
+    ap.add_argument("--csv", type=Path, help="write the per-case RMSEs here as they finish")
+    ap.add_argument("--reuse", type=Path, help="take the peers' RMSEs (gapfill's samples are "
+                                               "recomputed) from this CSV of an earlier run")
+    ap.add_argument("--doc", type=Path, help="also write the tables into this docs page, between "
+                                             "its <!-- segments:start/end --> markers")
+    args = ap.parse_args(argv)
+    folder = data_dir(REPO)
+    cases = real_gap_suite.cases(folder)
+    if args.only:
+        cases = [c for c in cases if any(x in c.name for x in args.only.split(","))]
+    cases = cases[:args.limit]
+    methods = [m for m in COLS if not (m == "ktk" and args.no_ktk)
+               and not (m == "default" and args.no_default)]
+    reuse = {}
+    if args.reuse:
+        with open(args.reuse) as f:
+            reuse = {r["case"]: r for r in csv.DictReader(f)}
+    print(f"{'case':58s} {'n':>6s} " + " ".join(f"{c:>10s}" for c in methods))
+    rows = []
+    for case in cases:
+        row = score(case, methods, reuse.get(case.name, {}))
+        rows.append(row)
+        print(f"{case.name[:58]:58s} {row['n']:6d} " +
+              " ".join(f"{row.get(c, np.nan):10.2f}" for c in methods), flush=True)
+        if args.csv:
+            write_csv(args.csv, rows)
+    table, stat = ratio_table(rows, methods)
+    print("\nratio to gapfill's RMSE on its samples: mean / worst (cases)")
+    for m, (mean, worst, n) in stat.items():
+        print(f"  {m:10s} {mean:6.3f} / {worst:6.3f}  ({n})")
+    agree = agreement_table(folder)
+    print("\ndata-found segments vs named tables (share of memberships)\n" + agree)
+    speed = timing(folder)
+    print("\n" + speed)
+    if args.doc:
+        write_block(args.doc, "segments", "\n\n".join([
+            f"{len(rows)} cases; RMSE ratio to gapfill's on the samples gapfill fills "
+            "(— where gapfill fills none, or a method leaves some of them empty).", table,
+            "Data-found segments (labels hidden) against the named tables:", agree, speed]))
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from torchfill import gaps
 from torchfill.cli import main
 from torchfill.metrics import gap_runs, rmse, rmse_missing
 from torchfill.solvers import get_solver
-from torchfill.solvers.auto import gap_kind, run_geometry
+from torchfill.solvers.auto import gap_kind, kind_weights, run_geometry
 
 CANDIDATES = ("pchip", "pca_train", "svt", "tucker_tnn")
 
@@ -184,3 +184,20 @@ def test_trial_end_gaps_of_a_quarter_of_the_trial_are_held_out(recording):
     pma = torchfill.fill(G, "pma", constraints=False)
     assert rmse_missing(out, truth, miss) <= 1.25 * rmse_missing(pma, truth, miss)
     assert rmse_missing(out, truth, miss) <= 12.0                        # mm
+
+
+def test_a_partial_candidate_without_held_out_gaps_of_a_kind_leans_on_its_parent():
+    """Candidate 1 fills only the segment kinds (2: inside, 3: trial end) and won the held-out
+    gaps inside; with no held-out trial-end gap of a segment it keeps a say there from its
+    overall error instead of losing every trial-end segment sample to the others."""
+    kinds = torch.tensor([0, 0, 1, 1, 2, 2])             # 0/1: inside/end, 2: inside + segment
+    gap_ids = torch.tensor([0, 1, 2, 3, 4, 5])
+    nan = float("nan")
+    err2 = torch.tensor([[1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+                         [nan, nan, nan, nan, 0.01, 0.01]], dtype=torch.float64)
+    allowed = torch.tensor([[True, False], [True, False], [True, True], [True, True]])
+    W = kind_weights(err2, kinds, gap_ids, 4, combine="average", keep_ratio=1.5,
+                     allowed=allowed)
+    assert torch.allclose(W.sum(dim=1), torch.ones(4, dtype=torch.float64))
+    assert (W[:2, 1] == 0).all()                         # not allowed outside its kinds
+    assert W[2, 1] == 1.0 and W[3, 1] == 1.0             # it won the segment samples it was seen on

@@ -154,3 +154,24 @@ def test_rigid_method_within_a_few_mm_where_three_mates_are_seen(recording, name
     assert metrics.rmse_missing(filled, truth, done) <= 5.0
     assert metrics.rmse_missing(filled, truth, done) < 0.5 * metrics.rmse_missing(
         torchfill.fill(gappy.points, "pchip", constraints=False), truth, done)
+
+
+def test_a_ghost_in_a_mates_track_does_not_steer_the_fit():
+    """A mate whose label jumps to a still point 1.8 m away for the last third of the trial (a
+    swap onto a ghost, as in the hockey recording's LFHD) is down-weighted where its distances to
+    the other mates leave their band: the trial-end fill from the three good mates stays exact."""
+    T = 300
+    time = np.arange(T) / 100.0
+    shape = np.random.default_rng(1).normal(0, 80, size=(5, 3))
+    ang = 1.5 * np.sin(2 * np.pi * 0.4 * time)
+    c, s = np.cos(ang), np.sin(ang)
+    R = np.zeros((T, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1
+    trans = np.stack([500 * time, 300 * np.sin(time), 900 + 0 * time], 1)
+    truth = np.einsum("tcd,kd->tkc", R, shape) + trans[:, None]
+    X = truth.copy()
+    X[200:, 1] = truth[200, 1] + [1800.0, 0.0, 0.0]      # the ghost: still, far away
+    X[220:, 0] = np.nan
+    est, _, _ = segment_fill(X, None, {"a": [0, 1, 2, 3, 4]})
+    err = np.linalg.norm(est[220:, 0] - truth[220:, 0], axis=1)
+    assert err.max() < 0.1

@@ -73,12 +73,14 @@ INTERIOR = ("tucker_tnn",)
 INTERIOR_SHARE = 0.25
 #: Candidates that fill only some samples (NaN elsewhere), with the parameters that make them so:
 #: ``rigid`` where three segment-mates are seen and its own error estimate (measured on observed
-#: frames) is within 1.5 % of the body's size (about 10 mm): a soft-tissue segment carried far
-#: from its reference frames won the hold-out of a 100-frame window of 20 markers in a flip
-#: (cmu_85_02) and filled it at 28 mm where pma gives 10.5. The samples such a candidate fills form gap
-#: kinds of their own (see :func:`gap_kind`), in which it competes with the others; elsewhere it
-#: has no weight.
-PARTIAL = {"rigid": {"fallback": False, "max_error": 0.015}}
+#: frames) is within 5 % of the body's size (about 30 mm). At 1.5 % the default lost to gapfill's
+#: rigid-body fill on gapfill's own samples of the real-gap-pattern suite (mean ratio 1.20, worst
+#: 4.2: a foot marker rigid filled at 3.2 mm was left to pma at 25 mm); no limit lets a soft-tissue
+#: segment carried far from its reference frames win the hold-out of a 100-frame window of 20
+#: markers in a flip (cmu_85_02: 28 mm where pma gives 10.5; 11.1 mm at 5 %, 10.9 at 1.5 %). The
+#: samples such a candidate fills form gap kinds of their own (see :func:`gap_kind`), in which it
+#: competes with the others; elsewhere it has no weight.
+PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
 #: With training recordings (fit data ``training``: the subject's other trials), the spatial
 #: candidates learn from their frames too (:mod:`torchfill.solvers.session`), under the name
 #: ``NAME+session``; the ones in ``ALONE`` also stay in as they were, so that the hold-out can
@@ -183,8 +185,9 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
     a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method)."""
     def mse(sel: Tensor, parent: Tensor) -> Tensor:
         n = int(torch.unique(gap_ids[sel]).numel()) if bool(sel.any()) else 0
-        own = err2[:, sel].nanmean(dim=1) if n else parent     # NaN: a partial candidate
-                                                                # that fills none of them
+        own = err2[:, sel].nanmean(dim=1) if n else parent
+        own = torch.where(torch.isnan(own), parent, own)       # a partial candidate that
+                                                                # fills none of them: its parent
         return (n * own + prior * parent) / (n + prior)
 
     def weights(m: Tensor, ok: Tensor) -> Tensor:

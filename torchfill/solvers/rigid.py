@@ -11,9 +11,11 @@ form a segment comes from :mod:`torchfill.segments` (marker-name tables, the dat
 which ``j`` and three or more of those mates were observed are the references; the weighted
 least-squares rotation and translation taking the mates from a reference frame to frame ``t``
 (Kabsch 1976; each mate weighted by how rigid its distance to ``j`` was while both were observed,
-``1 / (spread^2 + floor^2)``) carries ``j``'s position in the segment along. An interior gap blends
-the two edges' estimates linearly in time (the local position drifts with skin and soft tissue:
-the blend carries that drift across the gap); a trial end uses its one edge. The error estimate of
+``1 / (spread^2 + floor^2)``, and down-weighted in a frame where its distances to the other
+mates leave their observed band: a ghost or a swapped label in a mate's track) carries ``j``'s
+position in the segment along. An interior gap blends the two edges' estimates linearly in time
+(the local position drifts with skin and soft tissue: the blend carries that drift across the
+gap); a trial end uses its one edge. The error estimate of
 a sample is measured on observed frames only: carrying observed ``j`` over the same number of
 frames between reference frames (a few lags, up to ``HOLDOUT_FRAMES`` frames each) gives the RMS
 error as a function of reach, interpolated at the sample's reach. Where ``j`` belongs to several
@@ -80,6 +82,9 @@ PAIR_FRAMES = 12000
 SCALE_PAIRS = 20000
 #: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
 HOLDOUT_FRAMES = 64
+#: A mate is trusted in a frame while its distances to the other mates stay within this many
+#: times their observed band (twice the robust spread plus the floor); see :func:`_consistency`.
+CONSISTENT = 3.0
 #: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
 HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
@@ -198,10 +203,13 @@ def kabsch(P: Tensor, Q: Tensor, w: Tensor | None = None) -> tuple[Tensor, Tenso
 
 
 def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray,
-           src: np.ndarray, dst: np.ndarray, min_mates: int = 3) -> tuple[np.ndarray, np.ndarray]:
+           src: np.ndarray, dst: np.ndarray, min_mates: int = 3, shape=None
+           ) -> tuple[np.ndarray, np.ndarray]:
     """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights
-    ``w``; a mate counts where it is observed in both frames). Returns the estimates (n, 3) and
-    the bool (n,) of those with ``min_mates`` mates."""
+    ``w``; a mate counts where it is observed in both frames; with ``shape``, a mate whose
+    distances to the others are off their observed band in either frame is down-weighted there:
+    :func:`_consistency`). Returns the estimates (n, 3) and the bool (n,) of those with
+    ``min_mates`` mates."""
     W = w[None] * (seen[src][:, M] & seen[dst][:, M])
     ok = (W > 0).sum(axis=1) >= min_mates
     out = np.full((src.size, 3), np.nan)
@@ -210,13 +218,34 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     src, dst, W = src[ok], dst[ok], W[ok]
     P = np.nan_to_num(X[src][:, M])
     Q = np.nan_to_num(X[dst][:, M])
+    if shape is not None:
+        W = W * _consistency(P, W > 0, *shape) * _consistency(Q, W > 0, *shape)
     R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
     R, t = R.numpy(), t.numpy()
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
     return out, ok
 
 
-def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
+def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """Per frame and mate (n, k), a weight factor in (0, 1]: 1 while the mate's distances to the
+    other used mates stay within ``CONSISTENT`` x their bands ``band`` (k, k) of their medians
+    ``D0`` (k, k) (see :func:`_shape`), falling as ``(CONSISTENT / z)^2`` beyond, with ``z`` the
+    lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
+    (one point far from its place in the segment) stops steering the fit, while one bad mate
+    cannot condemn the good ones it is measured against."""
+    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1)
+    Z = np.abs(D - D0) / band
+    pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
+    pair &= ~np.eye(P.shape[1], dtype=bool)
+    Z = np.where(pair, Z, np.inf)
+    n = pair.sum(axis=2)
+    S = np.sort(Z, axis=2)
+    z = np.take_along_axis(S, np.clip((n - 1) // 2, 0, None)[..., None], axis=2)[..., 0]
+    z = np.where(n > 0, z, 0.0)
+    return (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
+
+
+def _holdout_curve(X, seen, j, M, w, refs, shape=None) -> tuple[np.ndarray, np.ndarray]:
     """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
     ``HOLDOUT_LAGS`` frames (those with at least three pairs): the fill's error by reach. All
     lags go through one batched Kabsch."""
@@ -235,7 +264,7 @@ def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
     if not srcs:
         return np.zeros(0), np.zeros(0)
     src, dst, tag = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(tags)
-    est, good = _carry(X, seen, j, M, w, src, dst)
+    est, good = _carry(X, seen, j, M, w, src, dst, shape=shape)
     sq = np.where(good, np.nansum((est - X[dst, j]) ** 2, axis=1), 0.0)
     lags, errs = [], []
     for n in range(len(srcs)):
@@ -246,15 +275,15 @@ def _holdout_curve(X, seen, j, M, w, refs) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(lags, float), np.maximum.accumulate(np.asarray(errs, float))
 
 
-def _estimate_at(X, seen, j, M, w, todo, refs, min_mates):
+def _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape=None):
     """Blend of ``j`` carried from the nearest reference before and after each ``todo`` frame;
     returns the estimates, which exist, and their reach (frames to the nearer used edge)."""
     pos = np.searchsorted(refs, todo)
     has_b, has_a = pos > 0, pos < refs.size
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
     a = refs[np.clip(pos, 0, refs.size - 1)]
-    eb, okb = _carry(X, seen, j, M, w, b, todo, min_mates)
-    ea, oka = _carry(X, seen, j, M, w, a, todo, min_mates)
+    eb, okb = _carry(X, seen, j, M, w, b, todo, min_mates, shape)
+    ea, oka = _carry(X, seen, j, M, w, a, todo, min_mates, shape)
     okb &= has_b
     oka &= has_a
     span = np.maximum(a - b, 1)
@@ -264,7 +293,7 @@ def _estimate_at(X, seen, j, M, w, todo, refs, min_mates):
     return e, okb | oka, reach
 
 
-def _segment_estimate(X, seen, j, M, w, min_mates=3):
+def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     """Estimate and error (3-D RMS) of marker ``j`` from mates ``M`` at its missing frames.
 
     References are the frames with ``j`` and ``min_mates`` mates observed; a frame whose nearest
@@ -280,7 +309,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3):
     refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
     if todo.size == 0 or refs.size == 0:
         return est, err
-    e, good, reach = _estimate_at(X, seen, j, M, w, todo, refs, min_mates)
+    e, good, reach = _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
         codes = use[todo[left]] @ (1 << np.arange(M.size, dtype=np.int64))
@@ -293,11 +322,12 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3):
                 if r.size:
                     w_s = np.zeros_like(w)
                     w_s[S] = w[S]
-                    e2, g2, r2 = _estimate_at(X, seen, j, M, w_s, todo[sel], r, min_mates)
+                    e2, g2, r2 = _estimate_at(X, seen, j, M, w_s, todo[sel], r, min_mates,
+                                                shape)
                     e[sel], good[sel], reach[sel] = e2, g2, r2
                     break
                 S = S[:-1]
-    lags, errs = _holdout_curve(X, seen, j, M, w, refs)
+    lags, errs = _holdout_curve(X, seen, j, M, w, refs, shape)
     if lags.size:
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
     else:                                 # too few observed frames to measure
@@ -386,7 +416,8 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
             w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
             if (w > 0).sum() < min_mates:
                 continue
-            e, r = _segment_estimate(X, seen, int(j), M, w, min_mates)
+            e, r = _segment_estimate(X, seen, int(j), M, w, min_mates,
+                                     _shape(stats, M, floor))
             per_coord = r / np.sqrt(3.0)
             rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
             mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
@@ -397,6 +428,19 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
             std[better, j] = per_coord[better]
             seg_of[better, j] = si
     return est, std, seg_of
+
+
+def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Median distances (k, k) among the mates ``M`` and their bands (twice the robust spread,
+    about the 95th percentile of a normal deviation, plus ``floor``; robust, so a ghost present in
+    a fifth of the frames does not widen it), NaN where a pair was not measured: what
+    :func:`_consistency` checks."""
+    a, b = np.meshgrid(M, M, indexing="ij")
+    idx = stats.lookup(a.ravel(), b.ravel()).reshape(a.shape)
+    hit = (idx >= 0) & (a != b)
+    D0 = np.where(hit, stats.distance[np.maximum(idx, 0)], np.nan)
+    band = 2.0 * np.where(hit, stats.spread[np.maximum(idx, 0)], np.nan) + floor
+    return D0, band
 
 
 def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None, labels=None,
