@@ -44,8 +44,8 @@ TARGETS = ("hdm05_bd_05-01_01_120.c3d", "cmu_135_02.c3d", "osim_rajagopal_motion
            "cmu_85_12.c3d", "osim_hamner_subject02_running.trc", "ktk_tennis_serve.c3d",
            "HDM_bd_01-02_01_120.c3d", "osim_gait2392_subject01_walk1.trc",
            "osim_rajagopal_motion_capture_walk.trc", "cmu_85_02.c3d")
-SINGLES = ("linear", "pchip", "spline", "pma", "lgrnn", "pca_gloersen", "li", "svt", "tucker_tnn",
-           "rigid")
+SINGLES = ("linear", "pchip", "spline", "pma", "lgrnn", "pca_gloersen", "li", "glr", "svt",
+           "tucker_tnn", "rigid")
 DEFAULT = "default"
 
 
