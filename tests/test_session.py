@@ -102,7 +102,7 @@ def test_cli_session(tmp_path):
     --session fills it from the other two better than alone (the method's own fill: no rigid
     donors); every input stays byte-identical and observed samples are written as read."""
     seq = torchfill.data.load_sample()
-    trials, masks = [], []
+    trials = []
     for i in range(3):
         part = seq.with_points(seq.points[320 * i:320 * (i + 1)])
         part.source = None

@@ -323,7 +323,7 @@ def _fill_options(args, src) -> tuple[str, dict]:
             close = difflib.get_close_matches(key, declared, n=1)
             raise ValueError(f"{src}{method} has no hyperparameter {key!r}"
                              + (f"; did you mean {close[0]!r}?" if close else "")
-                             + f" ('torchfill methods -v' lists them)")
+                             + " ('torchfill methods -v' lists them)")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)

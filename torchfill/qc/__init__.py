@@ -358,7 +358,7 @@ def _keypoint_scale(X, observed) -> float:
 
 
 def _gap_row(X, F, j, a, b, rate, names, partners, support, bounds, black) -> dict:
-    T, D = X.shape[0], X.shape[2]
+    T = X.shape[0]
     seg = F[max(a - 1, 0):min(b + 1, T), j]
     steps = np.linalg.norm(np.diff(seg, axis=0), axis=1)
     fin = np.isfinite(F[a:b, j]).all(axis=1)
