@@ -206,6 +206,21 @@ def _trial_end_share(mask: np.ndarray) -> float:
     return ends / max(int(mask.sum()), 1)
 
 
+def select(suite: list, only: str | None, shard: str = "0/1") -> list:
+    """The cases whose names hold one of the comma-separated ``only`` substrings, then every N-th
+    from the I-th (``shard`` "I/N")."""
+    if only:
+        suite = [c for c in suite if any(s in c.name for s in only.split(","))]
+    i, n = (int(x) for x in shard.split("/"))
+    return suite[i::n]
+
+
+def print_cases(suite: list) -> None:
+    for c in suite:
+        print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, "
+              f"{int(c.mask.sum())} hidden, {100 * _trial_end_share(c.mask):.0f} % at trial ends")
+
+
 def summary(rows: list[dict], methods: list[str]) -> str:
     singles = [m for m in methods if m != DEFAULT]
     lines = ["| case | end % | " + " | ".join(methods) + " | default / best |",
@@ -263,14 +278,9 @@ def main() -> None:
     args = ap.parse_args()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     suite = mask_suite(args.mask_suite) if args.mask_suite else cases(seeds=args.seeds)
-    if args.only:
-        suite = [c for c in suite if any(s in c.name for s in args.only.split(","))]
-    i, n = (int(x) for x in args.shard.split("/"))
-    suite = suite[i::n]
+    suite = select(suite, args.only, args.shard)
     if args.list:
-        for c in suite:
-            print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, "
-                  f"{int(c.mask.sum())} hidden, {100 * _trial_end_share(c.mask):.0f} % at trial ends")
+        print_cases(suite)
         return
     reuse: dict[str, dict] = {}
     for path in args.reuse:

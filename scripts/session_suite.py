@@ -25,7 +25,7 @@ import numpy as np
 
 import torchfill
 from docblock import write_csv
-from real_gap_suite import REPO, _trial_end_share, complete, in_mm, sources
+from real_gap_suite import REPO, _trial_end_share, complete, in_mm, print_cases, select, sources
 from torchfill import gaps
 from torchfill.data import data_dir
 from torchfill.metrics import rmse_missing
@@ -124,14 +124,9 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="list the cases and stop")
     args = ap.parse_args()
     suite = cases(data_dir(REPO), args.both_ways)
-    if args.only:
-        suite = [c for c in suite if any(s in c.name for s in args.only.split(","))]
-    i, n = (int(x) for x in args.shard.split("/"))
-    suite = suite[i::n]
+    suite = select(suite, args.only, args.shard)
     if args.list:
-        for c in suite:
-            print(f"{c.name}: {c.truth.n_frames} x {c.truth.n_markers}, {int(c.mask.sum())} "
-                  f"hidden, {100 * _trial_end_share(c.mask):.0f} % at trial ends")
+        print_cases(suite)
         return
     rows = []
     for c in suite:
