@@ -506,7 +506,9 @@ class Auto(Solver):
         post = self.fit_data_.get("post")
         if post is None or fills.shape[0] == 0:
             return fills, torch.zeros_like(missing)
-        return post(fills, missing)
+        with warnings.catch_warnings():     # the candidates' post-step speaks to no one: the
+            warnings.simplefilter("ignore")  # final fill's own post-step warns the user once
+            return post(fills, missing)
 
     @staticmethod
     def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
