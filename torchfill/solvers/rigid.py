@@ -248,12 +248,15 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     return (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
 
 
-def _holdout_curve(X, seen, j, M, w, refs, shape=None) -> tuple[np.ndarray, np.ndarray]:
+def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
-    ``HOLDOUT_LAGS`` frames (those with at least three pairs): the fill's error by reach. All
-    lags go through one batched Kabsch."""
+    ``HOLDOUT_LAGS`` frames (those with at least three pairs) up to the first that covers
+    ``reach`` (the longest one asked for: longer lags change no estimate): the fill's error by
+    reach. All lags go through one batched Kabsch."""
     srcs, dsts, tags = [], [], []
-    for n, lag in enumerate(HOLDOUT_LAGS):
+    last = int(np.searchsorted(HOLDOUT_LAGS, reach))
+    for n, lag in enumerate(HOLDOUT_LAGS[:last + 1]):
         later = np.searchsorted(refs, refs + lag)
         ok = later < refs.size
         if ok.sum() < 3:
@@ -330,7 +333,8 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
                     e[sel], good[sel], reach[sel] = e2, g2, r2
                     break
                 S = S[:-1]
-    lags, errs = _holdout_curve(X, seen, j, M, w, refs, shape)
+    lags, errs = _holdout_curve(X, seen, j, M, w, refs, shape,
+                                reach=float(reach[good].max()) if good.any() else 0.0)
     if lags.size:
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
     else:                                 # too few observed frames to measure
