@@ -24,7 +24,8 @@ How (observed data only, never the ground truth of the gaps):
    of Tits et al. 2018 with weights from held-out errors; ``"select"``: the best alone). A kind
    seen in few held-out gaps leans on its parent (see :func:`kind_weights`).
 4. The candidates that carry weight on a real gap are refitted on every observed sample, and the
-   real gaps get the weighted average of the refits (``refit=False``: of the hold-out fits, one
+   real gaps get the weighted average of the refits, each reusing what its hold-out fit chose
+   (:meth:`Solver.carry`: Tucker's eps schedule) (``refit=False``: of the hold-out fits, one
    fit per candidate; on scripts/eval_auto.py that raised the mean RMSE from 5.05 to 5.72 mm and
    the worst case from 1.4x to 4x the best single method).
 5. The error estimate ``std_`` (T, J): a log-linear model of the held-out squared error of the
@@ -328,6 +329,7 @@ class Auto(Solver):
         self.scores_: dict[str, float] = {}
         self.weights_: dict[str, dict[str, float]] = {}
         self.dropped_: dict[str, str] = {}
+        self.carried_: dict[str, dict] = {}
 
     def _estimate(self) -> Tensor:
         return self.X_
@@ -425,7 +427,8 @@ class Auto(Solver):
         X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
         method = name.removesuffix(SESSION)
         params = {"seed": self.seed, **PARTIAL.get(method, {}),
-                  **(self.candidate_params or {}).get(method, {})}
+                  **(self.candidate_params or {}).get(method, {}),
+                  **self.carried_.get(name, {})}
         solver = get_solver(method, **params)
         takes = [k for k in solver.fit_data              # a spatial default candidate learns
                  if k != "training" or name.endswith(SESSION)     # from training as +session
@@ -435,6 +438,7 @@ class Auto(Solver):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)
+        self.carried_[name] = solver.carry()    # the refit reuses what the hold-out fit chose
         done = torch.isfinite(out).all(dim=-1)
         if name in PARTIAL and bool(done[fit_missing].any()):
             return out.to(self.M_.dtype)                    # NaN where it does not fill
