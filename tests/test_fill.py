@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import torchfill
-from torchfill import gaps, metrics
+from torchfill import gaps, metrics, qc
 from torchfill import UnfilledWarning
 
 
@@ -225,6 +225,37 @@ def test_tucker_fill_computes_in_float32_and_keeps_float64_observed_samples(reco
     seq_out = torchfill.fill(seq.with_points(given), "tucker_tnn")
     assert seq_out.meta["fill_info"]["dtype"] == "float32"
     assert errors[None] < 1.5 * errors["float64"] + 1.0                         # mm
+
+
+def test_default_leaves_markers_without_observed_motion_unfilled(recording):
+    """On a real recording with a heavy mask (a third of the markers hidden over most of the
+    trial, two markers seen only in isolated frames), the default leaves NaN exactly the samples
+    :func:`torchfill.qc.untested` names -- those two markers' -- with one warning that counts
+    them; ``extrapolate=None`` fills every sample; observed samples stay bit-for-bit."""
+    seq = torchfill.read(recording("osim_gait2392_subject01_walk1.trc"))
+    T, J = seq.mask.shape
+    mask = seq.mask.copy()
+    mask[20:T - 20, ::3] = True                                # interior gaps, 14 markers at once
+    isolated = [4, 10]
+    mask[:, isolated] = True
+    mask[::7, isolated] = False                               # seen every 7th frame only
+    mask[T - 1, isolated] = False                             # and at both trial ends
+    gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full, std = torchfill.fill(gapped, extrapolate=None, return_std=True)
+    with pytest.warns(UnfilledWarning, match=r"(\d+) filled sample\(s\) of 2 marker\(s\) left NaN") as got:
+        cut = torchfill.fill(gapped)
+    rule = qc.untested(mask, std)
+    left = mask & np.isnan(cut.points).any(axis=2)
+    assert np.isfinite(full.points).all()                      # extrapolate=None fills all
+    assert np.array_equal(left, rule)                          # exactly the rule's samples
+    assert set(np.flatnonzero(rule.any(axis=0))) == set(isolated)
+    count = int(rule.sum())
+    assert cut.meta["fill_info"]["untested"] == count > 0
+    assert any(str(w.message).startswith(f"{count} filled sample(s)") for w in got)
+    for out in (cut, full):
+        assert np.array_equal(out.points[~mask], seq.points[~mask])
 
 
 def test_dtype_must_be_a_floating_dtype():

@@ -311,3 +311,19 @@ def test_a_short_gap_on_its_interpolation_is_not_flagged_on_a_large_estimate_alo
     assert long_["verdict"] == "check" and np.isnan(long_["disagree"])
     assert off["verdict"] == "check"
     assert any("estimated error" in r for r in off["reasons"])
+
+
+def test_untested_names_the_filled_samples_of_markers_without_an_observed_step():
+    """A marker seen only in isolated frames is untested where the fill has an estimate; one seen
+    in two consecutive frames, one never seen, and samples without an estimate are not."""
+    missing = np.ones((8, 4), dtype=bool)
+    missing[[0, 2, 5], 0] = False            # isolated frames only
+    missing[[3, 4], 1] = False               # one observed step
+    missing[:, 3] = False                    # always seen
+    std = np.ones(missing.shape)
+    std[6, 0] = np.nan                       # no estimate there
+    got = qc.untested(missing, std)
+    expected = missing.copy()
+    expected[:, 1:] = False
+    expected[6, 0] = False
+    assert np.array_equal(got, expected) and int(got.sum()) == 4

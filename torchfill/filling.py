@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from .constraints import constrain, constrain_candidates
-from .qc import per_mm
+from .qc import per_mm, untested
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
@@ -110,8 +110,11 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         is left NaN with a warning. Samples filled from rigid donors, and -- for a spatial method
         such as the default (``Solver.spatial``) -- samples in frames with at least three markers
         seen, are not extrapolations in time and are not cut. Needs the rate of a
-        MarkerSequence: arrays and tensors have no limit. None: no limit. Only with
-        ``constraints``.
+        MarkerSequence: arrays and tensors have no limit. With a limit, the samples of a marker
+        never seen in two consecutive frames are left NaN too, where the fill has an error
+        estimate (the default's): it has no observed motion to go on, and neither has the
+        estimate (see :func:`torchfill.qc.untested`; one warning names the markers). None: no
+        limit, every sample filled. Only with ``constraints``.
     return_std : bool
         Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
         each filled sample, in the data's units, NaN where observed or left unfilled (``auto``
@@ -341,6 +344,8 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
         case.shown.post_step()
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
                                               case.seg_idx, case.solver.spatial)
+        if extrapolate is not None:
+            info["untested"] = _leave_untested(out, std, case.missing, data)
         if reject is not None and isinstance(data, MarkerSequence):
             info["rejected"] = _reject(out, std, case.missing, data.units, reject)
     if bool(todo.any()):
@@ -668,6 +673,23 @@ def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: 
     return count
 
 
+def _leave_untested(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data) -> int:
+    """Leave NaN the filled samples :func:`torchfill.qc.untested` names (markers never seen in two
+    consecutive frames; only where the fill has an error estimate); returns how many, with one
+    warning naming the markers."""
+    drop = torch.as_tensor(untested(missing.cpu().numpy(), std.cpu().numpy()), device=out.device)
+    drop &= torch.isfinite(out).all(dim=2)
+    count = int(drop.sum())
+    if count:
+        out[drop] = float("nan")
+        which = drop.any(dim=0)
+        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: never "
+                      f"seen in two consecutive frames, so neither the fill nor its error "
+                      f"estimate has observed motion to go on ({_marker_names(data, which, 8)}; "
+                      f"extrapolate=None fills them)", UnfilledWarning, stacklevel=5)
+    return count
+
+
 def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Tensor,
                       max_gap: int) -> torch.Tensor:
     """Put the long gaps back as they were given (NaN, except finite coordinates of a sample
@@ -681,8 +703,8 @@ def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Ten
     return out
 
 
-def _marker_names(data, which: torch.Tensor) -> str:
+def _marker_names(data, which: torch.Tensor, most: int | None = None) -> str:
     idx = torch.nonzero(which).flatten().tolist()
-    if isinstance(data, MarkerSequence):
-        return ", ".join(data.labels[i] for i in idx)
-    return ", ".join(map(str, idx))
+    names = [data.labels[i] for i in idx] if isinstance(data, MarkerSequence) else list(map(str, idx))
+    more = most is not None and len(names) > most
+    return ", ".join(names[:most] if more else names) + (" ..." if more else "")

@@ -185,6 +185,35 @@ def est_rmse(std, j: int, a: int, b: int, dims: int) -> float:
     return float(np.sqrt(dims * np.mean(s ** 2))) if s.size else math.nan
 
 
+def untested(missing, std) -> np.ndarray:
+    """``(T, J)`` filled samples that the default leaves NaN: those of a marker never observed in
+    two consecutive frames, where the fill has an error estimate (finite ``std``; ``missing``:
+    the samples that were missing).
+
+    The rule weighs a fill against what OpenSim IK loses without it: IK skips a NaN marker and
+    solves the frame from the others, so a fill is worth writing only where it is better than
+    that. A marker never seen in two consecutive frames has no observed motion: the fill places
+    it from a handful of isolated frames, ``auto``'s hold-out cannot hide a gap-shaped run of it
+    (it keeps half of a marker's samples, two at least), and its error model, which reads the
+    marker's observed speed, extrapolates to a tiny estimate. On the OpenSim IK benchmark's
+    heaviest mask (docs/ik.md: Hamner run <- ktk_basket_sprint, 57 % missing) nine such markers,
+    seen in 2-15 isolated frames of 240, got estimates of 0.3-0.6 mm where their fills erred by
+    24-627 mm (median per marker); the worst hip/knee error fell from 53 to 14 deg and the mean
+    joint-angle RMSE from 22.8 to 14.7 deg (14.1 with every gap left) when they were left NaN;
+    no marker of the 11 other masks qualifies. A threshold on the estimate itself cost more than
+    it saved on top of this rule: samples left NaN above 20 mm, above 30 mm, or above 30 mm and
+    10 mm where the marker's segment keeps three markers seen in the frame took the mean over
+    the 12 masks from 2.16 to 3.98, 3.09 and 3.14 deg (on the masks with many markers missing
+    together the estimate is above 40 mm where the fills err by 12-32 mm, and IK has nothing
+    better for those segments); ``fill(reject=...)`` still offers it.
+    """
+    missing = np.asarray(missing, dtype=bool)
+    seen = ~missing
+    moving = (seen[1:] & seen[:-1]).any(axis=0)                       # (J,) one observed step
+    std = np.asarray(std, dtype=np.float64)
+    return missing & ~moving[None] & seen.any(axis=0)[None] & np.isfinite(std)
+
+
 def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
     """``(verdict, reasons)`` of one gap row (see :func:`gap_table`) under ``th``."""
     u, reasons, level = th.units, [], 0
