@@ -131,6 +131,16 @@ def test_data_segments_are_the_rigid_bodies_with_the_hinge_marker_in_both_in_any
     assert any(set(m) <= B and "8" in m for m in gappy.values())
 
 
+def test_a_fill_finds_no_segments_on_a_dense_surface_unless_asked():
+    """Above DENSE points the default takes none (the rigid pairs serve a dense surface);
+    ``segments="data"`` still finds the bodies."""
+    from torchfill.segments import DENSE
+    X = np.concatenate([_two_bodies(T=120, seed=s) for s in range(DENSE // 9 + 1)], axis=1)
+    assert X.shape[1] > DENSE
+    assert len(resolve(None, None, X)) == 0
+    assert len(resolve("data", None, X)) >= 2 * (DENSE // 9 + 1)
+
+
 def _case(recording, target, source):
     truth = torchfill.read(recording(target))
     keep = [j for j in range(truth.n_markers) if np.isfinite(truth.points[:, j]).all()]
