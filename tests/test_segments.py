@@ -10,7 +10,7 @@ import pytest
 
 import torchfill
 from torchfill import gaps
-from torchfill.segments import Segments, agreement, load, parse, resolve
+from torchfill.segments import Segments, agreement, load, parse, purity, resolve
 from torchfill.solvers.rigid import rigid_pairs, segment_fill
 
 
@@ -79,19 +79,66 @@ def test_user_segments_match_labels_without_prefix_and_case(recording):
                                                      "Reed:RPSI"]
 
 
-@pytest.mark.parametrize("name,least", [
-    # measured with scripts/eval_segments.py; the issue's 90 % is met on the first two only
-    ("osim_rajagopal_motion_capture_run.trc", 0.9), ("HDM_bd_01-02_01_120.c3d", 0.85),
-    ("osim_hamner_subject02_running.trc", 0.75), ("biomechzoo_hockey_wrist_shot_009.c3d", 0.6),
-    ("cmu_85_12.c3d", 0.7),
-])
-def test_segments_found_in_the_data_agree_with_the_tables(recording, name, least):
+@pytest.mark.parametrize("name", [
+    "biomechzoo_hockey_wrist_shot_009.c3d", "osim_gait2392_subject01_walk1.trc",
+    "osim_hamner_subject02_running.trc", "osim_rajagopal_motion_capture_run.trc",
+    "osim_rajagopal_motion_capture_walk.trc", "hdm05_bd_05-01_01_120.c3d",
+    "hdm05_mm_01-02_03_120.c3d", "HDM_bd_01-02_01_120.c3d", "hdm05_dg_06-03_03_120.c3d",
+    "cmu_135_02.c3d", "cmu_02_01.c3d", "cmu_85_02.c3d", "cmu_85_12.c3d"])
+def test_segments_found_in_the_data_agree_with_the_tables(recording, name):
+    """Labels hidden, the near-rigid clusters reproduce >= 90 % of the named memberships (measured
+    89.7-100 %; cmu_02_01, a 3 s walk with a still elbow and shoulder, 89.7 %), and >= 80 % of
+    their own memberships lie in the matched named segment (measured 84-100 %)."""
     seq = torchfill.read(recording(name))
     keep = [j for j in range(seq.n_markers) if np.isfinite(seq.points[:, j]).all()
             and not seq.labels[j].startswith("*")]
     seq = seq.select(keep)
-    found = Segments.from_data(seq.points, seq.labels)
-    assert agreement(found, Segments.from_names(seq.labels), seq.labels) >= least
+    found = Segments.from_data(seq.points)                 # the labels never reach the clusters
+    found = Segments({s: [seq.labels[int(j)] for j in m] for s, m in found.items()})
+    named = Segments.from_names(seq.labels)
+    assert agreement(found, named, seq.labels) >= (0.89 if name == "cmu_02_01.c3d" else 0.9)
+    assert purity(found, named, seq.labels) >= 0.8
+
+
+def _two_bodies(T=400, seed=0):
+    """Two rigid bodies of four markers hinged at the origin, a fifth marker on the hinge axis,
+    1 mm noise: the thigh, the shank and the knee marker."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(0, 60, (4, 3)) + [0, 0, 250]
+    B = rng.normal(0, 60, (4, 3)) + [0, 0, -250]
+    knee = np.array([[0.0, 40.0, 0.0]])                         # on the hinge axis (y)
+    q = 0.8 * np.sin(np.linspace(0, 6 * np.pi, T))
+    R = np.zeros((T, 3, 3))
+    R[:, 0, 0], R[:, 0, 2], R[:, 2, 0], R[:, 2, 2], R[:, 1, 1] = (np.cos(q), np.sin(q),
+                                                                   -np.sin(q), np.cos(q), 1)
+    X = np.concatenate([np.broadcast_to(A, (T, 4, 3)), np.einsum("tij,kj->tki", R, B),
+                        np.broadcast_to(knee, (T, 1, 3))], axis=1)
+    return X + rng.normal(0, 1.0, X.shape) + np.linspace(0, 800, T)[:, None, None] * [1, 0, 0]
+
+
+def test_data_segments_are_the_rigid_bodies_with_the_hinge_marker_in_both_in_any_units():
+    X = _two_bodies()
+    found = Segments.from_data(X)
+    assert sorted(found.values()) == [["0", "1", "2", "3", "8"], ["4", "5", "6", "7", "8"]]
+    assert Segments.from_data(X / 1000.0) == found             # metres: the same clusters
+    X[50:90, 2] = np.nan
+    X[200:260, 5] = np.nan
+    gappy = Segments.from_data(X)                              # gaps: within the bodies still
+    A, B = {"0", "1", "2", "3", "8"}, {"4", "5", "6", "7", "8"}
+    assert all(set(m) <= A or set(m) <= B for m in gappy.values())
+    assert set().union(*gappy.values()) == A | B
+    assert any(set(m) <= A and "8" in m for m in gappy.values())
+    assert any(set(m) <= B and "8" in m for m in gappy.values())
+
+
+def test_a_fill_finds_no_segments_on_a_dense_surface_unless_asked():
+    """Above DENSE points the default takes none (the rigid pairs serve a dense surface);
+    ``segments="data"`` still finds the bodies."""
+    from torchfill.segments import DENSE
+    X = np.concatenate([_two_bodies(T=120, seed=s) for s in range(DENSE // 9 + 1)], axis=1)
+    assert X.shape[1] > DENSE
+    assert len(resolve(None, None, X)) == 0
+    assert len(resolve("data", None, X)) >= 2 * (DENSE // 9 + 1)
 
 
 def _case(recording, target, source):

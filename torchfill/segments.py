@@ -12,11 +12,16 @@ one format:
   ignoring ``.``, ``_``, ``-`` and blanks and a subject prefix (``Reed:LASI``); each subject prefix
   gets its own segments (``Derrick:pelvis``).
 * **data** (:meth:`Segments.from_data`): near-rigid clusters. For the pairs of near neighbours
-  only (each marker's ``NEIGHBOURS`` nearest in a few frames: the cost grows linearly with the
-  markers, never with their square), the distance while both are observed has a median ``d`` and a
-  robust spread ``s`` (1.4826 x MAD); a pair is as rigid as ``s / d`` is small. Skin markers move
-  5-15 mm on a segment, so there is no absolute cut: pairs join, most rigid first, into clusters
-  while every known pair of the merged cluster stays within ``RELATIVE_SPREAD``.
+  only (each marker's ``CLUSTER_NEIGHBOURS`` nearest in a few frames: the cost grows linearly with
+  the markers, never with their square), the distance while both are observed has a robust spread
+  ``s`` (1.4826 x MAD) over time: skin markers on one bone keep their distance within a few mm,
+  markers across a moving joint do not. Average linkage on ``s`` (a cluster pair's mean over its
+  measured pairs) merges the most rigid first; the cut is the first merge at which the number of
+  clusters of at least three markers (what a Kabsch fit needs) is largest -- no threshold in mm, so
+  the clusters do not depend on the units. A marker left in a smaller group gets a segment of its
+  own: the group and its most rigid neighbours up to three markers. A marker as rigid with another
+  cluster as that cluster's members are with each other (a knee marker: thigh and shank) belongs
+  to both, as in the name tables.
 * **a user file** (:func:`load`): the YAML that :meth:`Segments.to_yaml` writes (``torchfill info
   --segments`` prints it for the segments in use), so a user can check, edit and pass it back
   (``fill(..., segments=path)``, ``torchfill fill --segments FILE``).
@@ -25,6 +30,7 @@ This module imports no other torchfill module.
 """
 from __future__ import annotations
 
+import heapq
 import json
 import re
 from collections import OrderedDict
@@ -34,7 +40,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 __all__ = ["Segments", "resolve", "load", "pair_stats", "neighbour_pairs", "normalize",
-           "agreement"]
+           "agreement", "purity"]
 
 #: Each marker's nearest neighbours (in a few frames) whose pair distances are measured: the
 #: candidates of the data-found segments and of the constraints' rigid pairs.
@@ -45,19 +51,29 @@ NEIGHBOUR_FRAMES = 5
 PAIR_FRAMES = 12000
 #: Pairs are measured this many (frame, pair) entries at a time (8 MB per float64 array).
 PAIR_BLOCK = 1 << 20
-#: Data-found segments: a merged cluster's known pairs must all have a relative spread s / d at
-#: most this (skin markers on one segment: 0.2-5 %; across a moving joint: 5-30 %). Of 0.02 /
-#: 0.03 / 0.05 with complete or average linkage, 0.05 complete agreed best with the named tables
-#: on HDM05, CMU, Plug-in Gait, OpenSim and Qualisys cluster recordings (scripts/eval_segments.py).
-RELATIVE_SPREAD = 0.05
+#: Data-found segments: each marker's nearest neighbours (in a few frames) whose spreads the
+#: clustering reads (more than ``NEIGHBOURS``: average linkage reads the pairs between two
+#: clusters; 16 agreed with the tables as all pairs did on the 13 recordings of
+#: scripts/eval_segments.py, 12 left one 8 points lower).
+CLUSTER_NEIGHBOURS = 16
+#: Two clusters merge only where at least this share of the pairs between them was measured.
+MEASURED = 0.5
 #: Data-found clusters grow to at most this many markers (a body segment carries a few; a dense
-#: surface would otherwise merge into one cluster at a cost quadratic in its size).
+#: surface would otherwise merge into one cluster).
 MAX_SIZE = 24
+#: The near-neighbour segments (``mates``) take neighbours whose relative spread s / d is at most
+#: three times this.
+RELATIVE_SPREAD = 0.05
 #: Segments found from the data for a fill also give each marker its own: itself and this many
 #: most rigid neighbours (clusters alone left many samples without three mates).
 DATA_MATES = 5
 #: ... for recordings of at most this many markers (a dense surface has clusters enough).
 MATES_UP_TO = 300
+#: A fill finds no segments in the data of more markers than this (a dense surface: its points
+#: are each other's donors through the constraints' rigid pairs). On the 6 890-point body of
+#: scripts/bench_dense_points.py the clusters took the linear fill's RMSE on the gaps from 4.35
+#: to 4.30 mm at twice the time (17 -> 35 s); ``segments="data"`` still finds them.
+DENSE = 300
 
 # --------------------------------------------------------------------------------------------
 # Name tables. Marker names are normalised (lower case, no separators); "#" stands for the side
@@ -172,20 +188,19 @@ class Segments(OrderedDict):
 
     @classmethod
     def from_data(cls, X, labels: Iterable[str] | None = None, observed=None, *,
-                  relative_spread: float = RELATIVE_SPREAD, min_size: int = 3,
-                  neighbours: int = NEIGHBOURS, mates: int = 0) -> "Segments":
+                  min_size: int = 3, neighbours: int = CLUSTER_NEIGHBOURS, mates: int = 0,
+                  relative_spread: float = RELATIVE_SPREAD) -> "Segments":
         """Near-rigid clusters of the observed samples of ``X`` (T, J, 3) (see the module
-        docstring); clusters of fewer than ``min_size`` markers are left out. Named
+        docstring), each of at least ``min_size`` markers; a marker may be in several. Named
         ``cluster1, cluster2, ...`` in the order of their first marker. With ``mates > 0``, also
         one segment per marker (``near:LABEL``): the marker and its ``mates`` most rigid
-        neighbours within ``3 x relative_spread`` (the reconstruction's donors where a cluster is
-        too small or missing in a frame)."""
+        neighbours within ``3 x relative_spread`` of their distance (the reconstruction's donors
+        where a cluster is missing in a frame)."""
         X = np.asarray(X, dtype=np.float64)
         J = X.shape[1]
         labels = [str(x) for x in labels] if labels is not None else [str(j) for j in range(J)]
         stats = pair_stats(X, observed, neighbours=neighbours)
-        groups = _cluster(J, stats, relative_spread)
-        groups = sorted((sorted(g) for g in groups if len(g) >= min_size), key=lambda g: g[0])
+        groups = _cluster(J, stats, min_size)
         out = cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
                   source="data")
         if mates > 0 and J <= MATES_UP_TO:
@@ -322,7 +337,7 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     """The segments a fill uses. ``segments``: a :class:`Segments` or dict (used as given), a
     path to a YAML file, ``"names"`` (the tables), ``"data"`` (found from ``X``), or None / "auto":
     the tables when they cover at least three segments of three markers, else found from the
-    data."""
+    data up to ``DENSE`` markers (a dense surface: none, see ``DENSE``)."""
     if isinstance(segments, Segments):
         return segments
     if isinstance(segments, Mapping):
@@ -338,7 +353,7 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
         named = Segments.from_names(labels)
         if segments == "names" or sum(len(m) >= 3 for m in named.values()) >= 3:
             return named
-    if X is None:
+    if X is None or (segments != "data" and np.shape(X)[1] > DENSE):
         return Segments(source="data")
     return Segments.from_data(X, labels, observed, mates=DATA_MATES)
 
@@ -462,60 +477,140 @@ def _col_quantile(S: np.ndarray, n: np.ndarray, q: float) -> np.ndarray:
     return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
 
 
-def _cluster(J: int, stats: PairStats, limit: float) -> list[list[int]]:
-    """Agglomerate markers along the measured pairs, most rigid (smallest s / d) first; two
-    clusters merge only while every measured pair between them is within ``limit`` and at least
-    half of the possible pairs between them were measured (near neighbours of each other)."""
-    rel = stats.relative
-    ok = np.isfinite(rel) & (rel <= limit)
-    order = np.argsort(rel[ok], kind="stable")
-    pj, pk = stats.j[ok][order], stats.k[ok][order]
-    good = {(int(a), int(b)) for a, b in zip(stats.j[ok], stats.k[ok])}
-    measured = {(int(a), int(b)) for a, b in zip(stats.j, stats.k)}
-    member = list(range(J))
-    groups: dict[int, list[int]] = {j: [j] for j in range(J)}
-    for a, b in zip(pj, pk):
-        ga, gb = member[a], member[b]
-        if ga == gb:
+def _cluster(J: int, stats: PairStats, least: int) -> list[list[int]]:
+    """The data-found segments as sorted marker indices, ordered by their first marker: the
+    clusters of the cut :func:`_linkage` makes, with their joint markers
+    (:func:`_joints`), and each marker left in a smaller group grown to ``least`` markers by its
+    most rigid neighbours (:func:`_grow`)."""
+    ok = np.isfinite(stats.spread)
+    nb: list[dict[int, float]] = [{} for _ in range(J)]
+    for a, b, x in zip(stats.j[ok].tolist(), stats.k[ok].tolist(), stats.spread[ok].tolist()):
+        nb[a][b] = nb[b][a] = x
+    groups, height = _groups(J, _linkage(nb, least))
+    found = [g + _joints(g, h, nb) for g, h in zip(groups, height) if len(g) >= least]
+    found += [_grow(g, least, nb) for g in groups if len(g) < least]
+    unique = {tuple(sorted(g)) for g in found if len(g) >= least}
+    return [list(g) for g in sorted(unique)]
+
+
+def _linkage(nb: list[dict[int, float]], least: int) -> list[tuple[int, int, float]]:
+    """Average linkage (UPGMA) along the measured pairs, ``nb[j][k]`` the spread of pair (j, k),
+    cut at the first merge where the number of clusters of at least ``least`` markers is largest:
+    the merges ``(a, b, height)`` up to there, merged clusters numbered ``J, J + 1, ...``, the
+    height the mean spread of the measured pairs between ``a`` and ``b``. Two clusters merge only
+    where at least ``MEASURED`` of their pairs were measured and up to ``MAX_SIZE`` markers. The
+    linkage stops once the markers still in smaller clusters cannot raise the count."""
+    J = len(nb)
+    link = [{k: [x, 1] for k, x in d.items()} for d in nb]     # cluster -> [sum, pairs]
+    size = [1] * J
+    heap = [(x, a, b) for a in range(J) for b, x in nb[a].items() if a < b]
+    heapq.heapify(heap)
+    merges: list[tuple[int, int, float]] = []
+    count = best = stop = 0
+    small = J if least > 1 else 0                  # markers in clusters of fewer than least
+    while heap and count + small // least > best:
+        h, a, b = heapq.heappop(heap)
+        if link[a] is None or link[b] is None:
             continue
-        A, B = groups[ga], groups[gb]
-        if len(A) + len(B) > MAX_SIZE:
-            continue
-        n_meas = n_good = 0
-        for x in A:
-            for y in B:
-                key = (min(x, y), max(x, y))
-                if key in measured:
-                    n_meas += 1
-                    n_good += key in good
-        if n_good < n_meas or 2 * n_meas < len(A) * len(B):
-            continue
-        if len(A) < len(B):
-            ga, gb, A, B = gb, ga, B, A
-        A += B
-        for y in B:
-            member[y] = ga
-        del groups[gb]
-    return list(groups.values())
+        n = size[a] + size[b]
+        new: dict[int, list] = {}
+        for c in (a, b):
+            for o, (x, m) in link[c].items():
+                if o not in (a, b):
+                    e = new.setdefault(o, [0.0, 0])
+                    e[0] += x
+                    e[1] += m
+                    del link[o][c]
+        c = len(size)
+        for o, e in new.items():
+            link[o][c] = e
+            if e[1] >= MEASURED * size[o] * n and size[o] + n <= MAX_SIZE:
+                heapq.heappush(heap, (e[0] / e[1], o, c))
+        link += [new]
+        link[a] = link[b] = None
+        size.append(n)
+        merges.append((a, b, h))
+        if n >= least:
+            count += 1 - (size[a] >= least) - (size[b] >= least)
+            small -= size[a] * (size[a] < least) + size[b] * (size[b] < least)
+        if count > best:
+            best, stop = count, len(merges)
+    return merges[:stop]
+
+
+def _groups(J: int, merges) -> tuple[list[list[int]], list[float]]:
+    """The groups after ``merges`` and the height of each one's last merge (0: one marker)."""
+    members = {j: [j] for j in range(J)}
+    height = {j: 0.0 for j in range(J)}
+    for i, (a, b, h) in enumerate(merges):
+        members[J + i] = members.pop(a) + members.pop(b)
+        height[J + i] = h
+    return list(members.values()), [height[c] for c in members]
+
+
+def _mean_spread(g: list[int], nb: list[dict[int, float]]) -> dict[int, tuple[float, int]]:
+    """For each marker outside ``g`` measured with some of it: (mean spread to them, pairs)."""
+    acc: dict[int, list] = {}
+    for x in g:
+        for y, v in nb[x].items():
+            if y not in g:
+                e = acc.setdefault(y, [0.0, 0])
+                e[0] += v
+                e[1] += 1
+    return {y: (e[0] / e[1], e[1]) for y, e in acc.items()}
+
+
+def _joints(g: list[int], height: float, nb: list[dict[int, float]]) -> list[int]:
+    """Markers outside cluster ``g`` as rigid with it as its members are with each other (mean
+    spread at most the cluster's merge height, measured with at least ``MEASURED`` of it)."""
+    return sorted(y for y, (m, n) in _mean_spread(g, nb).items()
+                  if m <= height and n >= MEASURED * len(g))
+
+
+def _grow(g: list[int], least: int, nb: list[dict[int, float]]) -> list[int]:
+    """Group ``g`` with its most rigid neighbours (smallest mean spread) up to ``least``."""
+    g = list(g)
+    while len(g) < least:
+        cand = _mean_spread(g, nb)
+        if not cand:
+            break
+        g.append(min(cand, key=lambda y: (cand[y][0], y)))
+    return g
+
+
+def _matched(found: Segments, named: Segments, labels: list[str]):
+    """Markers of the named segments of three or more, and each found segment's markers with the
+    named segment it shares most markers with (None where it shares none)."""
+    named_idx = {s: set(i) for s, i in named.indices(labels).items() if len(i) >= 3}
+    markers = set().union(*named_idx.values()) if named_idx else set()
+    out = []
+    for idx in found.indices(labels).values():
+        idx = set(idx)
+        best = max(named_idx, key=lambda n: len(named_idx[n] & idx)) if named_idx else None
+        out.append((idx, named_idx[best] if best is not None and named_idx[best] & idx else None))
+    return markers, out
 
 
 def agreement(found: Segments, named: Segments, labels: Iterable[str]) -> float:
     """Share of the memberships of the named segments that the found segments agree with: over
     the markers of named segments of three or more, each found segment is matched to the named
     segment it shares most markers with, and a marker agrees when its found segment's match is one
-    of its named segments (a marker in no found segment disagrees)."""
-    labels = list(labels)
-    named_idx = {s: set(i) for s, i in named.indices(labels).items() if len(i) >= 3}
-    found_idx = {s: set(i) for s, i in found.indices(labels).items()}
-    markers = set().union(*named_idx.values()) if named_idx else set()
+    of its named segments (a marker in no found segment disagrees). Extra found segments never
+    lower it: read it with :func:`purity`."""
+    markers, match = _matched(found, named, list(labels))
     if not markers:
         return float("nan")
-    match = {}
-    for s, idx in found_idx.items():
-        best = max(named_idx, key=lambda n: len(named_idx[n] & idx))
-        match[s] = best if named_idx[best] & idx else None
-    agree = 0
-    for m in markers:
-        mine = [s for s, idx in found_idx.items() if m in idx]
-        agree += any(match[s] is not None and m in named_idx[match[s]] for s in mine)
+    agree = sum(any(m in idx and hit is not None and m in hit for idx, hit in match)
+                for m in markers)
     return agree / len(markers)
+
+
+def purity(found: Segments, named: Segments, labels: Iterable[str]) -> float:
+    """Share of the found memberships (of markers of named segments of three or more) that lie in
+    the named segment their found segment is matched to (as in :func:`agreement`): a found segment
+    that mixes two named ones, or one marker with two unrelated mates, lowers it."""
+    markers, match = _matched(found, named, list(labels))
+    total = sum(len(idx & markers) for idx, _ in match)
+    if not total:
+        return float("nan")
+    return sum(len(idx & markers & hit) for idx, hit in match if hit is not None) / total
