@@ -417,6 +417,12 @@ _CACHE: "OrderedDict[bytes, tuple]" = OrderedDict()
 _CACHE_LOCK = threading.Lock()
 
 
+def clear_cache() -> None:
+    """Forget :func:`segment_fill`'s kept results (benchmarks time the computation itself)."""
+    with _CACHE_LOCK:
+        _CACHE.clear()
+
+
 def _frame_of(X: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, float]:
     """Per-axis mean and one scale of the observed positions: the fill is computed in these
     units (a rigid fill commutes with a shift and a uniform scaling), so that the same recording
