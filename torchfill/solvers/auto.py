@@ -85,12 +85,12 @@ PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
 #: ``TWINS`` learn from their frames too (:mod:`torchfill.solvers.session`), under the name
 #: ``NAME+session``; the ones in ``ALONE`` also stay in as they were, so that the hold-out can
 #: still choose the recording's own evidence where another trial misleads (a different motion).
-#: ``pma`` runs only as its twin and ``lgrnn``/``glr`` only on the recording: on 10 trials of
-#: scripts/bench_session.py ``glr+session`` never carried weight, and ``pma+session`` with
-#: ``pma`` beside it cost a third of the session's extra time.
+#: ``pma`` and ``glr`` run only as their twins (``pma+session`` with ``pma`` beside it cost a third
+#: of the session's extra time on scripts/bench_session.py), ``lgrnn`` only on the recording (its
+#: twin cost as much and carried weight on 2 of 10 trials there).
 SESSION = "+session"
-TWINS = ("li", "pma", "pca_gloersen")
-ALONE = ("li", "lgrnn", "glr", "pca_gloersen")
+TWINS = ("li", "glr", "pma", "pca_gloersen")
+ALONE = ("li", "lgrnn", "pca_gloersen")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
