@@ -82,12 +82,16 @@ INTERIOR_SHARE = 0.25
 #: samples such a candidate fills form gap kinds of their own (see :func:`gap_kind`), in which it
 #: competes with the others; elsewhere it has no weight.
 PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
-#: With training recordings (fit data ``training``: the subject's other trials), the spatial
-#: candidates learn from their frames too (:mod:`torchfill.solvers.session`), under the name
+#: With training recordings (fit data ``training``: the subject's other trials), the candidates in
+#: ``TWINS`` learn from their frames too (:mod:`torchfill.solvers.session`), under the name
 #: ``NAME+session``; the ones in ``ALONE`` also stay in as they were, so that the hold-out can
 #: still choose the recording's own evidence where another trial misleads (a different motion).
+#: ``pma`` and ``glr`` run only as their twins (``pma+session`` with ``pma`` beside it cost a third
+#: of the session's extra time on scripts/bench_session.py), ``lgrnn`` only on the recording (its
+#: twin cost as much and carried weight on 2 of 10 trials there).
 SESSION = "+session"
-ALONE = ("li", "pma", "pca_gloersen")
+TWINS = ("li", "glr", "pma", "pca_gloersen")
+ALONE = ("li", "lgrnn", "pca_gloersen")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -314,10 +318,10 @@ class Auto(Solver):
 
     @staticmethod
     def _session_twins(name: str) -> list[str]:
-        """With training data: a spatial default candidate as ``NAME+session`` (and as itself
-        too when in ``ALONE``); any other as itself."""
+        """With training data: a default candidate in ``TWINS`` as ``NAME+session``, and as
+        itself too when in ``ALONE``; any other as itself."""
         solver = get_solver(name)
-        if not solver.spatial or "training" not in solver.fit_data:
+        if name not in TWINS or not solver.spatial or "training" not in solver.fit_data:
             return [name]
         return [name, name + SESSION] if name in ALONE else [name + SESSION]
 

@@ -323,11 +323,16 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     gapped = [k for k in torch.argsort(presence, descending=True, stable=True).tolist()
               if bool(todo[:, k].any()) and bool((~missing[:, k]).any())]
     cache: dict[int, Tensor] = {}
+    rest = Y[T0:]                                        # the training rows, filtered once
+    if T > T0:
+        rest = session.piecewise(lambda y: symfilter(y, window), rest.reshape(T - T0, -1),
+                                 [(a - T0, b - T0) for a, b in pieces[1:]]).reshape(rest.shape)
 
     def filtered(j: int) -> Tensor:
-        """Marker ``j`` filtered along time (recomputed once it has been filled)."""
+        """Marker ``j`` filtered along time (recomputed once it has been filled; the training
+        rows, never filled, are filtered once for every marker)."""
         if j not in cache:
-            cache[j] = session.piecewise(lambda y: symfilter(y, window), Y[:, j], pieces)
+            cache[j] = torch.cat([symfilter(Y[:T0, j], window), rest[:, j]])
         return cache[j]
 
     for k in gapped:
