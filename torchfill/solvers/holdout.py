@@ -108,10 +108,7 @@ def _edge_runs(gaps: Tensor) -> Tensor:
 
 def mirrored_edge_holdout(Omega: Tensor) -> Tensor | None:
     """Observed entries to hold out like the gaps at the trial ends: each marker's gap at the start
-    (end) mirrored onto its end (start), where the marker is observed up to that end or up to its
-    gap at that end (which then grows to the mirrored gap's length: a group of markers missing at
-    the start, most of them also for a while at the end, is mirrored whole, not as the few
-    markers seen up to the last frame).
+    (end) mirrored onto its end (start), where the marker is observed up to that end.
 
     Complements :func:`shifted_gap_holdout`, whose time shift moves trial-end gaps inside the
     recording (interpolation) while the real ones are extrapolations. No marker loses more than
@@ -121,8 +118,7 @@ def mirrored_edge_holdout(Omega: Tensor) -> Tensor | None:
     seen = _samples(Omega)
     if T < 10 or not bool(seen.any()):
         return None
-    E = _edge_runs(~seen)
-    V = _edge_runs(E.flip(0) | E) & seen        # a gap already at that end grows to the mirror's
+    V = _edge_runs(_edge_runs(~seen).flip(0) & seen)
     V = V & (V.sum(dim=0) <= 0.5 * seen.sum(dim=0))
     if not bool(V.any()):
         return None
