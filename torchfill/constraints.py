@@ -23,7 +23,8 @@ changes. The post-step below takes the method's fill and, in this order:
    ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
    based projection, as MocapRecovery's skeleton constraint keeps neighbour distances); not on
    ``auto``'s average, whose candidates each went through it (real-gap suite: 22.84 -> 22.78 mm,
-   numediart_03_rolling's mask on hdm05_bd 17.35 -> 14.64 mm);
+   numediart_03_rolling's mask on hdm05_bd 17.35 -> 14.64 mm, measured beside a trial-end
+   hold-out variant since dropped);
 6. **no teleports**: inside each gap, one-frame steps longer than 1.5 x the recording's 99.9th
    percentile observed step are shortened, the gap's end mismatch spread over all its steps
    (repeated; linear interpolation if that cannot meet the limit); a gap held at one edge only
