@@ -52,6 +52,21 @@ def test_edge_blending_makes_the_fill_continue_the_trajectory():
     assert np.abs(out[60:100, 1] - X[60:100, 1]).max() < 5.0
 
 
+def test_trial_end_offset_fades_so_a_good_fill_far_from_the_edge_is_kept():
+    from torchfill.constraints import END_FADE
+    X = _walk()
+    X[148] += 15.0                       # noise on the last observed sample: a velocity kink
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[150:, 3] = True              # lost for the rest of the trial
+    F = X.copy()
+    off = np.clip(1.0 - np.arange(50) / END_FADE, 0.0, None)[:, None]
+    F[150:, 3] += 40.0 * off             # a spatial fill 40 mm off at the edge, right further on
+    out, _ = constrain(F, missing)
+    assert metrics.edge_jumps(out, missing).max() < 0.1 * metrics.edge_jumps(F, missing).max()
+    # the edge offset is not carried over the whole gap: the fill stays right beyond the fade
+    assert np.abs(out[150 + END_FADE:, 3] - X[150 + END_FADE:, 3]).max() < 1e-9
+
+
 def test_extrapolation_limit_leaves_the_far_end_unfilled_with_a_warning():
     X = _walk()
     missing = np.zeros(X.shape[:2], dtype=bool)
