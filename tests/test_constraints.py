@@ -182,10 +182,6 @@ def test_soft_distances_hold_a_rigid_pair_with_a_tiny_spread_and_rare_jitter():
     d = np.linalg.norm(out[200:260, 1] - out[200:260, 0], axis=1)
     assert np.abs(d - 70).max() < 3.0                                    # mm (before: 12.6 mm)
     assert np.array_equal(out[~missing], X[~missing])
-    kept, _ = constrain(F, missing, soft=False)        # auto's average of constrained candidates
-    d = np.linalg.norm(kept[200:260, 1] - kept[200:260, 0], axis=1)
-    assert np.abs(d - 70).max() > 10.0                                   # the bulge stays
-    assert np.array_equal(kept[~missing], X[~missing])
 
 
 def test_a_trial_end_fill_keeps_to_the_observed_steps_an_interior_fill_may_exceed_them():

@@ -21,10 +21,11 @@ changes. The post-step below takes the method's fill and, in this order:
    then: on hdm05_bd_05-01 such a pair took one 208-frame gap from 2.5 to 46 mm); the band of
    that test is at least the rigidity tolerance (a pair seen almost still has a tiny band),
    ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
-   based projection, as MocapRecovery's skeleton constraint keeps neighbour distances); not on
-   ``auto``'s average, whose candidates each went through it (real-gap suite: 22.84 -> 22.78 mm,
-   numediart_03_rolling's mask on hdm05_bd 17.35 -> 14.64 mm, measured beside a trial-end
-   hold-out variant since dropped);
+   based projection, as MocapRecovery's skeleton constraint keeps neighbour distances), on
+   ``auto``'s average too, although its candidates each went through it: without it the
+   real-gap suite's mean moved by 0.06 mm while segments tore on the real gaps of
+   walking_hybrid_1_4 filled whole (21 gaps with a rigid partner more than 3 spreads off
+   against 15, the largest deviation 103 mm against 42);
 6. **no teleports**: inside each gap, one-frame steps longer than 1.5 x the recording's 99.9th
    percentile observed step are shortened, the gap's end mismatch spread over all its steps
    (repeated; linear interpolation if that cannot meet the limit); a gap held at one edge only
@@ -110,7 +111,7 @@ class ConstraintReport:
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
               names=None, pairs: RigidPairs | None = None,
               donors: tuple[np.ndarray, np.ndarray] | None = None, segments=None,
-              spatial: bool = False, soft: bool = True
+              spatial: bool = False
               ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
@@ -138,9 +139,6 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         frame (``auto``, the PMA family, Gløersen PCA): a trial-end sample in a frame with at least
         ``SPATIAL_MIN`` observed markers is not an extrapolation in time, and the
         ``extrapolate`` limit does not cut it (the fill's error estimate judges it instead).
-    soft : bool
-        Step 5, the soft rigid distances (off for a fill made of candidates that each went
-        through them: ``auto``'s average, which a second projection moved away from the truth).
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
@@ -167,7 +165,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     _interpolate_blackouts(F, observed, free, report)
     free &= np.isfinite(F).all(axis=2)
     _blend_edges(F, free)
-    if F.shape[2] == 3 and soft:
+    if F.shape[2] == 3:
         _soft_distances(F, free, pairs)
     report.step_limit = step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
     report.end_step_limit = report.step_limit * END_STEP_FACTOR / STEP_FACTOR

@@ -343,8 +343,7 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     if constraints and bool(todo.any()):
         case.shown.post_step()
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
-                                              case.seg_idx, case.solver.spatial,
-                                              soft="post" not in case.solver.fit_data)
+                                              case.seg_idx, case.solver.spatial)
         if extrapolate is not None:
             info["untested"] = _leave_untested(out, std, case.missing, data)
         if reject is not None and isinstance(data, MarkerSequence):
@@ -487,16 +486,15 @@ def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) 
 
 
 def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate,
-               segments=None, spatial: bool = False, soft: bool = True):
+               segments=None, spatial: bool = False):
     """The constraints post-step on the fill; coordinates the input had stay bit-for-bit.
-    ``spatial``: the method places markers from the same frame (see ``Solver.spatial``);
-    ``soft``: keep rigid distances softly (see :func:`constrain`)."""
+    ``spatial``: the method places markers from the same frame (see ``Solver.spatial``)."""
     rate = data.rate if isinstance(data, MarkerSequence) else None
     frames = None if extrapolate is None or not rate else int(round(extrapolate * rate))
     names = data.labels if isinstance(data, MarkerSequence) else None
     F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
                           long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names,
-                          segments=segments, spatial=spatial, soft=soft)
+                          segments=segments, spatial=spatial)
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
 
