@@ -43,6 +43,25 @@ def test_info_runs_without_torch(small_npz):
     assert _imported_after(code) == set()
 
 
+def test_fill_imports_no_optional_package(small_npz, tmp_path):
+    """A plain fill pays for torch and NumPy only: SciPy, TensorLy, Lightning, the plots, pandas
+    and YAML wait until a method or command uses them."""
+    optional = ("scipy", "tensorly", "lightning", "pytorch_lightning", "matplotlib", "pandas",
+                "yaml", "ezc3d", "opensim")
+    argv = ["fill", str(small_npz), "-m", "linear", "-o", str(tmp_path / "out.npz")]
+    code = f"from torchfill.cli import main\nassert main({argv!r}) == 0"
+    assert _imported_after(code, heavy=optional) == set()
+
+
+def test_catalog_mentions_every_method():
+    """The fill's quick name test (no source parsing) never rules out a registered method."""
+    import torchfill
+    from torchfill._catalog import mentioned
+
+    assert all(mentioned(name) for name in torchfill.methods())
+    assert not mentioned("no_such_method")
+
+
 def test_import_torchfill_is_light_and_fill_still_works():
     assert _imported_after("import torchfill") == set()
     loaded = _imported_after("import torchfill\nassert 'tucker_tnn' in torchfill.methods()")

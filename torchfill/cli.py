@@ -294,26 +294,24 @@ def _fill_options(args, src) -> tuple[str, dict]:
     method name and ``-p`` names with a "did you mean", values by the method's own checks."""
     import difflib
 
-    from torchfill._catalog import entries
+    from torchfill._catalog import entries, mentioned
 
     src = f"{src}: " if src is not None else ""
     if args.max_gap is not None and args.max_gap < 0:
         raise ValueError(f"{src}max_gap expected >= 0, found {args.max_gap}")
     params = _parse_params(args.param)
     _extrapolate(args)
-    names = [name for name, _ in entries()]            # read from the sources: no torch yet
-    if args.method is not None and args.method not in names:
-        close = difflib.get_close_matches(args.method, names, n=1)
-        raise ValueError(f"{src}unknown method {args.method!r}"
-                         + (f"; did you mean {close[0]!r}?" if close else "")
-                         + " ('torchfill methods' lists them)")
+    if args.method is not None and not mentioned(args.method):     # a typo: say so before torch
+        names = [name for name, _ in entries()]        # read from the sources: no torch yet
+        if args.method not in names:
+            raise _unknown_method(src, args.method, names)
     import torchfill
     from torchfill.solvers import base
 
     names = torchfill.methods()
     method = torchfill.default_method() if args.method is None else args.method
     if method not in names:
-        raise ValueError(f"{src}unknown method {method!r} ('torchfill methods' lists them)")
+        raise _unknown_method(src, method, names)
     cls = base._REGISTRY[method]
     declared = [*cls.declared_params(), *cls._merged("renamed")]
     for key in params:
@@ -338,6 +336,15 @@ def _fill_options(args, src) -> tuple[str, dict]:
                | _segments(args))
     options["constraints"] = args.constraints
     return method, options
+
+
+def _unknown_method(src: str, method: str, names: list[str]) -> ValueError:
+    import difflib
+
+    close = difflib.get_close_matches(method, names, n=1)
+    return ValueError(f"{src}unknown method {method!r}"
+                      + (f"; did you mean {close[0]!r}?" if close else "")
+                      + " ('torchfill methods' lists them)")
 
 
 #: ``fill()`` keywords that have their own command-line option
