@@ -184,6 +184,28 @@ def test_soft_distances_hold_a_rigid_pair_with_a_tiny_spread_and_rare_jitter():
     assert np.array_equal(out[~missing], X[~missing])
 
 
+def test_soft_distances_hold_an_anchored_fill_still_and_move_its_partner():
+    """auto's fills from segment-mates are anchored: the soft distances move only the partner."""
+    T = 600
+    t = np.arange(T) / 120.0
+    base = np.stack([300 * np.sin(0.8 * t), 200 * np.cos(0.5 * t), 900 + 50 * np.sin(1.3 * t)], 1)
+    other = np.stack([200 * np.sin(2.1 * t), 300 * np.cos(1.7 * t), 700 + 90 * np.sin(3.1 * t)], 1)
+    X = np.stack([base, base + [70.0, 0, 0], other, -other + [0, 0, 1800]], 1)   # one rigid pair
+    missing = np.zeros((T, 4), dtype=bool)
+    missing[200:260, :2] = True            # both markers of a rigid pair missing together
+    F = X.copy()
+    F[200:260, 1] += 40 * np.sin(np.linspace(0, np.pi, 60))[:, None] * [0, 1.0, 0]   # a bulge
+    anchored = np.zeros_like(missing)
+    anchored[200:260, 0] = True             # marker 0's fill is exact
+    out, _ = constrain(F, missing, anchored=anchored)
+    assert np.abs(out[200:260, 0] - X[200:260, 0]).max() < 0.1
+    d = np.linalg.norm(out[200:260, 1] - out[200:260, 0], axis=1)
+    assert np.abs(d - 70).max() < 3.0
+    free, _ = constrain(F, missing)         # not anchored: the exact fill takes half the move
+    assert np.abs(free[200:260, 0] - X[200:260, 0]).max() > 2.0
+    assert np.array_equal(out[~missing], X[~missing])
+
+
 def test_a_trial_end_fill_keeps_to_the_observed_steps_an_interior_fill_may_exceed_them():
     """A fill held at one edge only (a gap touching a trial end) has no far edge that may need a
     fast move: its steps are shortened to the 99.9th-percentile observed step; an interior fill

@@ -243,6 +243,7 @@ class _Case:
     info: dict
     std: torch.Tensor
     shown: object = None             # the progress display, while solving
+    anchored: torch.Tensor | None = None     # fills the soft distances keep (auto's segments)
 
 
 def _prepare(data, method, params, training, mask, dtype, segments, constraints,
@@ -310,13 +311,13 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     case.points = None              # long recordings: hold as few full-length copies as we can
     plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
     start = time.perf_counter()
-    stds = {}
+    stds, anchors = {}, {}
     index = {w: k for k, w in enumerate(plan.windows)}
     case.shown = shown = _progress(progress, windows=len(index), method=method)
     try:
         filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
             method, params, extra, Xk[a:b], unfit[a:b, keep], shown, case.info, stds,
-            (a, b), constraints, return_std, index[a, b] + 1, len(index), solve, keep),
+            (a, b), constraints, return_std, index[a, b] + 1, len(index), solve, keep, anchors),
             workers=1 if Xk.device.type != "cpu" else workers)
     except BaseException:
         shown.close()                           # no half-drawn bar before the error line
@@ -326,6 +327,10 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     if len(stds) == len(plan.windows):      # every window has an estimate
         part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
         std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
+    if len(anchors) == len(plan.windows):
+        part = windows.blend(plan, unfit[:, keep], lambda a, b: anchors[a, b][..., None].to(Xk))
+        case.anchored = torch.zeros_like(todo)
+        case.anchored[:, keep] = todo[:, keep] & (part[..., 0] > 0.5)
     del Xk
     whole = len(keep) == out.shape[1]
     part = out if whole else out[:, keep]
@@ -343,7 +348,8 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     if constraints and bool(todo.any()):
         case.shown.post_step()
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
-                                              case.seg_idx, case.solver.spatial)
+                                              case.seg_idx, case.solver.spatial,
+                                              case.anchored)
         if extrapolate is not None:
             info["untested"] = _leave_untested(out, std, case.missing, data)
         if reject is not None and isinstance(data, MarkerSequence):
@@ -486,15 +492,17 @@ def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) 
 
 
 def _constrain(out: torch.Tensor, own: torch.Tensor, missing: torch.Tensor, data, extrapolate,
-               segments=None, spatial: bool = False):
+               segments=None, spatial: bool = False, anchored: torch.Tensor | None = None):
     """The constraints post-step on the fill; coordinates the input had stay bit-for-bit.
-    ``spatial``: the method places markers from the same frame (see ``Solver.spatial``)."""
+    ``spatial``: the method places markers from the same frame (see ``Solver.spatial``);
+    ``anchored``: fills the soft distances do not move (see :func:`constrain`)."""
     rate = data.rate if isinstance(data, MarkerSequence) else None
     frames = None if extrapolate is None or not rate else int(round(extrapolate * rate))
     names = data.labels if isinstance(data, MarkerSequence) else None
     F, report = constrain(out.cpu().numpy(), missing.cpu().numpy(), extrapolate=frames,
                           long=int(LONG_GAP_SECONDS * rate) if rate else None, names=names,
-                          segments=segments, spatial=spatial)
+                          segments=segments, spatial=spatial,
+                          anchored=None if anchored is None else anchored.cpu().numpy())
     new = torch.as_tensor(F, dtype=out.dtype, device=out.device)
     return torch.where(own, out, new), report
 
@@ -513,7 +521,8 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
                  stds: dict | None = None, key: tuple[int, int] = (0, 0),
                  constraints: bool = True, holdout: bool = False, window: int = 1,
                  windows: int = 1, solve: Callable | None = None,
-                 markers: torch.Tensor | None = None) -> torch.Tensor:
+                 markers: torch.Tensor | None = None, anchors: dict | None = None
+                 ) -> torch.Tensor:
     """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
     data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
     steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
@@ -534,6 +543,8 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
             est = holdout_std(method, params, X, missing, seed=solver.seed,
                               post=constrain_candidates if constraints else None, **extra)
         stds[key] = est.to(filled.dtype)
+    if anchors is not None and getattr(solver, "anchored_", None) is not None:
+        anchors[key] = solver.anchored_
     return filled
 
 

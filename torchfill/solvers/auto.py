@@ -268,6 +268,9 @@ class Auto(Solver):
         Held-out RMSE (normalized units, all held-out entries) per candidate that ran.
     weights_ : dict
         Per gap kind, the candidate weights used.
+    anchored_ : Tensor (T, J) of bool
+        Missing samples whose fill is at least half a partial candidate's (``rigid``: rebuilt
+        from segment-mates); ``fill()``'s soft distances hold them still.
     """
 
     name = "auto"
@@ -330,6 +333,7 @@ class Auto(Solver):
         self.X_ = self.interp_start()
         T, J = self.M_.shape[:2]
         self.std_ = torch.full((T, J), float("nan"), dtype=self.M_.dtype, device=self.M_.device)
+        self.anchored_ = torch.zeros((T, J), dtype=torch.bool, device=self.M_.device)
         self.scores_: dict[str, float] = {}
         self.weights_: dict[str, dict[str, float]] = {}
         self.dropped_: dict[str, str] = {}
@@ -371,6 +375,8 @@ class Auto(Solver):
             w = W[kinds].permute(2, 0, 1)
         w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
         w = w / w.sum(dim=0, keepdim=True).clamp(min=1e-300)
+        partial = torch.tensor([n in PARTIAL for n in names], device=w.device)
+        self.anchored_ = ~seen & (w[partial].sum(dim=0) >= 0.5)     # mostly a segment fill
         mean = (w[..., None] * torch.nan_to_num(fills)).sum(dim=0)
         fills = torch.where(torch.isfinite(fills), fills, mean)     # no say where it has none
         spread2 = self._spread2(fills, mean, err2)
