@@ -261,8 +261,8 @@ def test_default_leaves_markers_without_observed_motion_unfilled(recording):
 
 def test_default_leaves_a_lone_uncertain_fill_unfilled(recording):
     """On a real run whose torso and right-arm markers are never seen but for the lateral wrist
-    (the OpenSim IK benchmark's heaviest mask has the same shape), the wrist's gaps have no
-    segment-mate present: the default leaves NaN exactly the samples
+    (the OpenSim IK benchmark's heaviest mask has the same shape), the wrist is alone on its
+    segment: the default leaves NaN exactly the samples
     :func:`torchfill.qc.alone` names -- the wrist's, whose fill errs by more than the QC's check
     level there -- with one warning that counts them; ``extrapolate=None`` fills them; with
     its forearm mate seen the same gaps are filled; observed samples stay bit-for-bit."""

@@ -114,8 +114,8 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         never seen in two consecutive frames are left NaN too, where the fill has an error
         estimate (the default's): it has no observed motion to go on, and neither has the
         estimate (see :func:`torchfill.qc.untested`; one warning names the markers), and so
-        are the filled samples that would pose their segment alone -- no segment-mate seen or
-        filled in the frame -- with an estimated error above the QC's check level (see
+        are the samples of a marker whose segment-mates are never observed, where its estimated
+        error is above the QC's check level: the fill alone would pose the segment (see
         :func:`torchfill.qc.alone`; one warning). None: no limit, every sample filled. Only
         with ``constraints``.
     return_std : bool
@@ -697,9 +697,9 @@ def _leave_untested(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor,
 
 def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data,
                  segments: dict) -> int:
-    """Leave NaN the filled samples :func:`torchfill.qc.alone` names (no segment-mate present in
-    the frame, estimate above the QC's check level); returns how many, with one warning naming
-    the markers."""
+    """Leave NaN the filled samples :func:`torchfill.qc.alone` names (markers whose segment-mates
+    are never observed, estimate above the QC's check level); returns how many, with one warning
+    naming the markers."""
     units = data.units if isinstance(data, MarkerSequence) else "mm"
     drop = torch.as_tensor(alone(torch.isfinite(out).all(dim=2).cpu().numpy(),
                                  missing.cpu().numpy(), std.cpu().numpy(), segments, units),
@@ -709,10 +709,10 @@ def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, da
         out[drop] = float("nan")
         which = drop.any(dim=0)
         warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: no "
-                      f"other marker of their segment is seen or filled in those frames and their "
-                      f"estimated error is above {EST_CHECK_MM:g} mm, so the fill alone would pose "
-                      f"the segment ({_marker_names(data, which, 8)}; extrapolate=None fills "
-                      f"them)", UnfilledWarning, stacklevel=5)
+                      f"other marker of their segment is ever observed and their estimated error "
+                      f"is above {EST_CHECK_MM:g} mm, so the fill alone would pose the segment "
+                      f"({_marker_names(data, which, 8)}; extrapolate=None fills them)",
+                      UnfilledWarning, stacklevel=5)
     return count
 
 
