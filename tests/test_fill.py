@@ -258,6 +258,51 @@ def test_default_leaves_markers_without_observed_motion_unfilled(recording):
         assert np.array_equal(out.points[~mask], seq.points[~mask])
 
 
+
+def test_default_leaves_a_lone_uncertain_fill_unfilled(recording):
+    """On a real run whose torso and right-arm markers are never seen but for the lateral wrist
+    (the OpenSim IK benchmark's heaviest mask has the same shape), the wrist is alone on its
+    segment: the default leaves NaN exactly the samples
+    :func:`torchfill.qc.alone` names -- the wrist's, whose fill errs by more than the QC's check
+    level there -- with one warning that counts them; ``extrapolate=None`` fills them; with
+    its forearm mate seen the same gaps are filled; observed samples stay bit-for-bit."""
+    from torchfill.solvers.rigid import index_segments
+
+    seq = torchfill.read(recording("osim_hamner_subject02_running.trc"))
+    seq = seq.select(np.flatnonzero(~seq.mask.all(axis=0)))         # its dead L.Bicep
+    seq = seq.with_points(seq.points[:150])
+    labels = list(seq.labels)
+    mask = seq.mask.copy()
+    hidden = ["Sternum", "R.Acromium", "L.Acromium", "R.Bicep", "R.Elbow", "R.Wrist.Med"]
+    mask[:, [labels.index(m) for m in hidden]] = True              # never seen
+    wrist = labels.index("R.Wrist.Lat")
+    mask[30:60, wrist] = mask[90:110, wrist] = True
+    gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full, std = torchfill.fill(gapped, extrapolate=None, return_std=True)
+    with pytest.warns(UnfilledWarning, match=r"of 1 marker\(s\) left NaN: no other marker") as got:
+        cut = torchfill.fill(gapped)
+    segments = index_segments(None, labels, gapped.points, ~mask)
+    rule = qc.alone(np.isfinite(full.points).all(axis=2), mask, std, segments, seq.units)
+    left = mask & np.isnan(cut.points).any(axis=2) & np.isfinite(full.points).all(axis=2)
+    assert np.array_equal(left, rule)                                # exactly the rule's samples
+    assert set(np.flatnonzero(rule.any(axis=0))) == {wrist}
+    count = int(rule.sum())
+    assert cut.meta["fill_info"]["alone"] == count > 0.9 * 50         # nearly all 50 gap samples
+    assert any(str(w.message).startswith(f"{count} filled sample(s)") for w in got)
+    error = np.linalg.norm(full.points - seq.points, axis=2)[rule]
+    assert np.sqrt(np.mean(error ** 2)) > qc.EST_CHECK_MM               # a poor fill it leaves
+    assert np.isfinite(full.points[mask[:, wrist], wrist]).all()       # extrapolate=None: filled
+    mate = mask.copy()
+    mate[:, labels.index("R.Wrist.Med")] = seq.mask[:, labels.index("R.Wrist.Med")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seen = torchfill.fill(seq.with_points(np.where(mate[..., None], np.nan, seq.points)))
+    assert np.isfinite(seen.points[mask[:, wrist], wrist]).all()       # a mate seen: filled
+    for out, given in ((cut, mask), (full, mask), (seen, mate)):
+        assert np.array_equal(out.points[~given], seq.points[~given])
+
 def test_dtype_must_be_a_floating_dtype():
     for bad in ("int32", "float16", torch.bfloat16, "double precision"):
         with pytest.raises(ValueError, match="dtype expected"):

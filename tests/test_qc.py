@@ -327,3 +327,31 @@ def test_untested_names_the_filled_samples_of_markers_without_an_observed_step()
     expected[:, 1:] = False
     expected[6, 0] = False
     assert np.array_equal(got, expected) and int(got.sum()) == 4
+
+
+def test_alone_names_uncertain_fills_of_markers_whose_segment_mates_are_never_observed():
+    """A filled sample is alone where no other marker of any of the marker's segments is observed
+    in any frame and its 3-D estimate is above the check level (in the data's units); a mate
+    observed once in one of its segments, an estimate at or below the level, a marker in no
+    segment, a sample left NaN or an observed one is not."""
+    T = 6
+    missing = np.zeros((T, 6), dtype=bool)
+    missing[:, 1] = missing[:, 2] = True      # never observed
+    missing[2:, 0] = True                     # 0: mates 1 (a) and 2 (b) never observed
+    missing[1:, 3] = True                     # 3: its mate 4 (c) is
+    missing[:, 4] = False
+    missing[3:, 5] = True                     # 5: in no segment
+    missing[0, 4] = True                      # 4: observed but in frame 0
+    present = ~missing
+    present[2:, 0] = present[1:, 3] = present[3:, 5] = True      # filled
+    present[5, 0] = False                     # left NaN by another rule
+    std = np.full((T, 6), 10.0)               # 3-D estimate 17 mm
+    std[3, 0] = 4.0                           # 6.9 mm: at most the check level
+    segments = {"a": [0, 1], "b": [0, 2], "c": [3, 4, 1], "d": [5]}
+    got = qc.alone(present, missing, std, segments)
+    expected = np.zeros((T, 6), dtype=bool)
+    expected[[2, 4], 0] = True
+    assert np.array_equal(got, expected)
+    assert np.array_equal(qc.alone(present, missing, std * 1e-3, segments, units="m"), expected)
+    expected[3, 0] = True                     # 6.9 m is above 8 mm
+    assert np.array_equal(qc.alone(present, missing, std, segments, units="m"), expected)

@@ -841,8 +841,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--extrapolate", metavar="SECONDS",
                    help="seconds a gap at a trial end may be extrapolated in time, in frames "
                         "too empty for a spatial fill (default 0.25); with a limit, markers never "
-                        "seen in two consecutive frames are left NaN too; 'none': no limit, every "
-                        "sample filled")
+                        "seen in two consecutive frames, and uncertain fills of a marker whose "
+                        "segment-mates are never observed, are left NaN too; 'none': no limit, "
+                        "every sample filled")
     p.add_argument("--in-place", action="store_true",
                    help="write the fill onto IN itself (keeps the original as NAME.orig.EXT unless "
                         "--no-backup)")

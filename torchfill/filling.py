@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from .constraints import constrain, constrain_candidates
-from .qc import per_mm, untested
+from .qc import EST_CHECK_MM, alone, per_mm, untested
 from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
@@ -113,8 +113,11 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         MarkerSequence: arrays and tensors have no limit. With a limit, the samples of a marker
         never seen in two consecutive frames are left NaN too, where the fill has an error
         estimate (the default's): it has no observed motion to go on, and neither has the
-        estimate (see :func:`torchfill.qc.untested`; one warning names the markers). None: no
-        limit, every sample filled. Only with ``constraints``.
+        estimate (see :func:`torchfill.qc.untested`; one warning names the markers), and so
+        are the samples of a marker whose segment-mates are never observed, where its estimated
+        error is above the QC's check level: the fill alone would pose the segment (see
+        :func:`torchfill.qc.alone`; one warning). None: no limit, every sample filled. Only
+        with ``constraints``.
     return_std : bool
         Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
         each filled sample, in the data's units, NaN where observed or left unfilled (``auto``
@@ -352,6 +355,8 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
                                               case.anchored)
         if extrapolate is not None:
             info["untested"] = _leave_untested(out, std, case.missing, data)
+            if case.seg_idx:
+                info["alone"] = _leave_alone(out, std, case.missing, data, case.seg_idx)
         if reject is not None and isinstance(data, MarkerSequence):
             info["rejected"] = _reject(out, std, case.missing, data.units, reject)
     if bool(todo.any()):
@@ -698,6 +703,27 @@ def _leave_untested(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor,
                       f"seen in two consecutive frames, so neither the fill nor its error "
                       f"estimate has observed motion to go on ({_marker_names(data, which, 8)}; "
                       f"extrapolate=None fills them)", UnfilledWarning, stacklevel=5)
+    return count
+
+
+def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data,
+                 segments: dict) -> int:
+    """Leave NaN the filled samples :func:`torchfill.qc.alone` names (markers whose segment-mates
+    are never observed, estimate above the QC's check level); returns how many, with one warning
+    naming the markers."""
+    units = data.units if isinstance(data, MarkerSequence) else "mm"
+    drop = torch.as_tensor(alone(torch.isfinite(out).all(dim=2).cpu().numpy(),
+                                 missing.cpu().numpy(), std.cpu().numpy(), segments, units),
+                           device=out.device)
+    count = int(drop.sum())
+    if count:
+        out[drop] = float("nan")
+        which = drop.any(dim=0)
+        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: no "
+                      f"other marker of their segment is ever observed and their estimated error "
+                      f"is above {EST_CHECK_MM:g} mm, so the fill alone would pose the segment "
+                      f"({_marker_names(data, which, 8)}; extrapolate=None fills them)",
+                      UnfilledWarning, stacklevel=5)
     return count
 
 

@@ -214,6 +214,48 @@ def untested(missing, std) -> np.ndarray:
     return missing & ~moving[None] & seen.any(axis=0)[None] & np.isfinite(std)
 
 
+def alone(present, missing, std, segments, units: str = "mm") -> np.ndarray:
+    """``(T, J)`` filled samples that the default leaves NaN because their marker is alone on its
+    segments: no other marker of any segment it belongs to is observed anywhere in the recording,
+    and the fill's estimated 3-D error (sqrt(3) x ``std``) is above ``EST_CHECK_MM`` (the level
+    from which this module flags a gap on its estimate). ``present``: the samples that are
+    finite in the fill; ``missing``: those that were missing; ``segments``: ``name -> marker
+    indices`` (markers in no segment are never named); ``units``: the data's (arrays: mm).
+
+    OpenSim IK poses each body from its markers and the joints. A marker alone on its segment
+    has nothing in the recording that ties it to the segment -- no rigid donor for the fill, no
+    segment shape -- and in IK it is the only thing that poses the segment and the joints above
+    it that no other marker holds, so IK fits that chain to the fill exactly and the fill's error
+    goes whole into those angles, where leaving the sample NaN holds them at the last frame's
+    pose. On the OpenSim IK benchmark (docs/ik.md) only the heaviest mask (Hamner run <-
+    ktk_basket_sprint, 57 % missing) has such samples: R.Wrist.Lat, the only right-arm marker
+    ever seen there, with no torso marker seen, filled 55 mm RMS off (estimate 50 mm median).
+    With it filled IK bent the trunk to reach it (lumbar extension 21.3 deg RMS off against 14.8
+    with it left NaN) and the mask's joint-angle RMSE was 14.58 deg against 14.07 with every gap
+    left; left NaN, 13.88. Judged per frame instead (no segment-mate seen or filled in that
+    frame), the rule also took L.Thigh.Front there, whose mates are seen only in isolated frames:
+    13.93 deg, that marker's fill having helped a little (its hip and knee neighbours are held by
+    other markers), and it named 5-36 samples on three of ten real recordings of the data folder
+    with real gaps, where nothing shows the fill to be worse than none. A threshold on the estimate alone raised the
+    mean over the 12 masks by 1-2 deg.
+    """
+    present = np.asarray(present, dtype=bool)
+    missing = np.asarray(missing, dtype=bool)
+    std = np.asarray(std, dtype=np.float64)
+    seen = (~missing).any(axis=0)
+    member = np.zeros(missing.shape[1], dtype=bool)
+    mated = np.zeros(missing.shape[1], dtype=bool)      # a segment-mate observed somewhere
+    for markers in segments.values():
+        idx = np.unique(np.asarray(list(markers), dtype=int))
+        if idx.size < 2:
+            continue
+        member[idx] = True
+        mated[idx] |= (int(seen[idx].sum()) - seen[idx]) > 0
+    with np.errstate(invalid="ignore"):
+        uncertain = np.sqrt(3.0) * std > EST_CHECK_MM * per_mm(units)
+    return missing & present & (member & ~mated)[None] & uncertain
+
+
 def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
     """``(verdict, reasons)`` of one gap row (see :func:`gap_table`) under ``th``."""
     u, reasons, level = th.units, [], 0
