@@ -152,9 +152,9 @@ def test_fill_confidence_from_std_or_constant(folder, tmp_path):
         t, j = np.nonzero(mark)
         np.testing.assert_allclose(c[t, j], ref[j] * np.exp(-0.5 * (std[t, j] / s) ** 2),
                                    atol=1e-6)
-        # a larger std, a lower confidence
+        # a larger std, a lower confidence (up to the file's 1e-6 rounding of c, over ref)
         order = np.argsort(std[t, j] / 1.0)
-        assert (np.diff((c[t, j] / ref[j])[order]) <= 1e-6).all()
+        assert (np.diff((c[t, j] / ref[j])[order]) <= 1e-6 / ref.min()).all()
     gap = slice(20, 45)                        # the filled wrist stays near the true track
     err = np.abs(filled.points[gap, 4] - xy[gap, 4]).max()
     assert err < 80.0, err
