@@ -331,7 +331,7 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
         part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
         std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
     if len(anchors) == len(plan.windows):
-        part = windows.blend(plan, unfit[:, keep], lambda a, b: anchors[a, b][..., None].to(Xk))
+        part = windows.blend(plan, unfit[:, keep], lambda a, b: anchors[a, b][..., None].float())
         case.anchored = torch.zeros_like(todo)
         case.anchored[:, keep] = todo[:, keep] & (part[..., 0] > 0.5)
     del Xk
@@ -694,16 +694,9 @@ def _leave_untested(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor,
     consecutive frames; only where the fill has an error estimate); returns how many, with one
     warning naming the markers."""
     drop = torch.as_tensor(untested(missing.cpu().numpy(), std.cpu().numpy()), device=out.device)
-    drop &= torch.isfinite(out).all(dim=2)
-    count = int(drop.sum())
-    if count:
-        out[drop] = float("nan")
-        which = drop.any(dim=0)
-        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: never "
-                      f"seen in two consecutive frames, so neither the fill nor its error "
-                      f"estimate has observed motion to go on ({_marker_names(data, which, 8)}; "
-                      f"extrapolate=None fills them)", UnfilledWarning, stacklevel=5)
-    return count
+    return _leave_nan(out, drop & torch.isfinite(out).all(dim=2), data,
+                      "never seen in two consecutive frames, so neither the fill nor its error "
+                      "estimate has observed motion to go on")
 
 
 def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data,
@@ -715,15 +708,22 @@ def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, da
     drop = torch.as_tensor(alone(torch.isfinite(out).all(dim=2).cpu().numpy(),
                                  missing.cpu().numpy(), std.cpu().numpy(), segments, units),
                            device=out.device)
+    return _leave_nan(out, drop, data,
+                      f"no other marker of their segment is ever observed and their estimated "
+                      f"error is above {EST_CHECK_MM:g} mm, so the fill alone would pose the "
+                      f"segment")
+
+
+def _leave_nan(out: torch.Tensor, drop: torch.Tensor, data, why: str) -> int:
+    """Set the (T, J) samples ``drop`` of ``out`` to NaN; one UnfilledWarning says how many, of
+    which markers, and ``why``. Returns how many."""
     count = int(drop.sum())
     if count:
         out[drop] = float("nan")
         which = drop.any(dim=0)
-        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: no "
-                      f"other marker of their segment is ever observed and their estimated error "
-                      f"is above {EST_CHECK_MM:g} mm, so the fill alone would pose the segment "
+        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: {why} "
                       f"({_marker_names(data, which, 8)}; extrapolate=None fills them)",
-                      UnfilledWarning, stacklevel=5)
+                      UnfilledWarning, stacklevel=6)
     return count
 
 
