@@ -80,9 +80,10 @@ END_STEP_FACTOR = 1.0
 #: A gap held at one edge only (touching a trial end) takes its edge offset over this many frames,
 #: fading linearly to none: the offset (the observed trajectory continued by one frame's velocity,
 #: minus the fill) is mostly the edge's acceleration, and carried over the whole gap it moved
-#: right spatial fills off (on the samples gapfill's rigid-body fill reaches: the default's mean
-#: 0.92 -> 0.85 x gapfill's RMSE, s28_type1's mask on cmu_85_02 1.74 -> 1.06; fading over the
-#: whole gap there 1.36, over 30 frames 1.28). Continuing the acceleration too and keeping the
+#: right spatial fills off (on the samples gapfill's rigid-body fill reaches, measured with
+#: auto's average outside the soft distances: the default's mean 0.92 -> 0.85 x gapfill's RMSE,
+#: s28_type1's mask on cmu_85_02 1.74 -> 1.06; fading over the whole gap there 1.36, over 30
+#: frames 1.28). Continuing the acceleration too and keeping the
 #: shift instead won one recording (hamner running 0.68 x) and a model's bias at the far end
 #: (walking_hybrid_1_5's session fill on cmu_85_02: 18.3 mm, faded 49.2), but lost gapfill's
 #: samples (mean 0.87, numediart's layout mask 1.92 x) and joint angles (IK: worse than the gaps
