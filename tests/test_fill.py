@@ -241,11 +241,8 @@ def test_default_leaves_markers_without_observed_motion_unfilled(recording):
     mask[::7, isolated] = False                               # seen every 7th frame only
     mask[T - 1, isolated] = False                             # and at both trial ends
     gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        full, std = torchfill.fill(gapped, extrapolate=None, return_std=True)
-    with pytest.warns(UnfilledWarning, match=r"(\d+) filled sample\(s\) of 2 marker\(s\) left NaN") as got:
-        cut = torchfill.fill(gapped)
+    full, std, cut, got = _filled_and_cut(
+        gapped, r"(\d+) filled sample\(s\) of 2 marker\(s\) left NaN")
     rule = qc.untested(mask, std)
     left = mask & np.isnan(cut.points).any(axis=2)
     assert np.isfinite(full.points).all()                      # extrapolate=None fills all
@@ -257,6 +254,17 @@ def test_default_leaves_markers_without_observed_motion_unfilled(recording):
     for out in (cut, full):
         assert np.array_equal(out.points[~mask], seq.points[~mask])
 
+
+
+def _filled_and_cut(gapped, match: str):
+    """``gapped`` filled whole (``extrapolate=None``, with its error estimate) and by the default,
+    which must warn with ``match`` about what it leaves NaN: (full, std, cut, warnings)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full, std = torchfill.fill(gapped, extrapolate=None, return_std=True)
+    with pytest.warns(UnfilledWarning, match=match) as got:
+        cut = torchfill.fill(gapped)
+    return full, std, cut, got
 
 
 def test_default_leaves_a_lone_uncertain_fill_unfilled(recording):
@@ -278,11 +286,7 @@ def test_default_leaves_a_lone_uncertain_fill_unfilled(recording):
     wrist = labels.index("R.Wrist.Lat")
     mask[30:60, wrist] = mask[90:110, wrist] = True
     gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        full, std = torchfill.fill(gapped, extrapolate=None, return_std=True)
-    with pytest.warns(UnfilledWarning, match=r"of 1 marker\(s\) left NaN: no other marker") as got:
-        cut = torchfill.fill(gapped)
+    full, std, cut, got = _filled_and_cut(gapped, r"of 1 marker\(s\) left NaN: no other marker")
     segments = index_segments(None, labels, gapped.points, ~mask)
     rule = qc.alone(np.isfinite(full.points).all(axis=2), mask, std, segments, seq.units)
     left = mask & np.isnan(cut.points).any(axis=2) & np.isfinite(full.points).all(axis=2)
