@@ -190,7 +190,9 @@ def test_soft_distances_hold_an_anchored_fill_still_and_move_its_partner():
     t = np.arange(T) / 120.0
     base = np.stack([300 * np.sin(0.8 * t), 200 * np.cos(0.5 * t), 900 + 50 * np.sin(1.3 * t)], 1)
     other = np.stack([200 * np.sin(2.1 * t), 300 * np.cos(1.7 * t), 700 + 90 * np.sin(3.1 * t)], 1)
-    X = np.stack([base, base + [70.0, 0, 0], other, -other + [0, 0, 1800]], 1)   # one rigid pair
+    turn = 0.8 * np.sin(0.9 * t)           # the pair turns, so its distance is seen in many poses
+    arm = 70.0 * np.stack([np.cos(turn), np.sin(turn), np.zeros(T)], 1)
+    X = np.stack([base, base + arm, other, -other + [0, 0, 1800]], 1)   # one rigid pair
     missing = np.zeros((T, 4), dtype=bool)
     missing[200:260, :2] = True            # both markers of a rigid pair missing together
     F = X.copy()

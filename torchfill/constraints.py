@@ -286,21 +286,27 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
         return
     d0 = pairs.distance[rigid]
     band = band[rigid]
+    cone = None if pairs.cone is None else (pairs.direction[rigid], pairs.cone[rigid],
+                                            pairs.cover[rigid])
     rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
     size = max(1, SOFT_BLOCK // j.size)
     for a in range(0, rows.size, size):
         t = rows[a:a + size]
         G = F[t]
-        _project_distances(G, free[t], j, k, d0, band)
+        _project_distances(G, free[t], j, k, d0, band, cone)
         F[t] = G
 
 
-def _project_distances(F, free, j, k, d0, band) -> None:
+def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place), over the
-    (frame, pair) entries with a free member only (a few of the pairs in each frame)."""
+    (frame, pair) entries with a free member only (a few of the pairs in each frame).
+    ``cone``: each pair's observed mean direction and angular range (see :func:`_unseen_turn`)."""
     T, J, D = F.shape
     t, p = np.nonzero(free[:, j] | free[:, k])
     a, b, d0, band = j[p], k[p], d0[p], band[p]
+    if cone is not None:
+        band = band + d0 * (1 - cone[2][p]) * _unseen_turn(F[t, a] - F[t, b], cone[0][p],
+                                                            cone[1][p])
     fa, fb = free[t, a], free[t, b]
     share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
     ia, ib = t * J + a, t * J + b
@@ -317,6 +323,19 @@ def _project_distances(F, free, j, k, d0, band) -> None:
                       for c in range(D)], axis=1)
         count = _sum_at(ia, sa > 0, T * J) + _sum_at(ib, sb > 0, T * J)
         F += np.nan_to_num(C / np.maximum(count, 1)[:, None]).reshape(F.shape)
+
+
+def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> np.ndarray:
+    """Angle (radians) by which each pair's fill ``diff`` turns beyond the orientations its
+    distance was observed over. A distance measured only while a joint between the markers was
+    still is no evidence for other joint angles: the chord ``d0 x angle`` widens the band, in
+    proportion to the share of frames the pair was not seen in (a pair seen still throughout is
+    likely still in its gaps too; numediart_03_rolling's mask on hdm05_bd_05-01: an upper-arm
+    marker seen only in a still 18 % of the trial held the whole arm to its distances)."""
+    with np.errstate(all="ignore"):
+        n = np.linalg.norm(diff, axis=1)
+        angle = np.arccos(np.clip(np.einsum("nd,nd->n", diff, direction) / n, -1.0, 1.0))
+        return np.nan_to_num(np.maximum(angle - cone, 0.0))
 
 
 def _sum_at(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:

@@ -400,12 +400,15 @@ class PairStats:
 
     ``j``, ``k``: the pair's markers (j < k); ``distance``: median; ``spread``: 1.4826 x MAD;
     ``wide``: 95th percentile of ``|distance - median|``; ``count``: frames seen together;
-    ``J``: markers in the recording.
+    ``J``: markers in the recording; ``direction`` (n, 3): mean unit vector from ``k`` to ``j``;
+    ``cone``: 95th percentile of its angle (radians) to ``direction``: the orientations of the
+    pair the distances were measured over.
     """
 
-    def __init__(self, j, k, distance, spread, wide, count, J):
+    def __init__(self, j, k, distance, spread, wide, count, J, direction=None, cone=None):
         self.j, self.k = j, k
         self.distance, self.spread, self.wide, self.count, self.J = distance, spread, wide, count, J
+        self.direction, self.cone = direction, cone
 
     @property
     def relative(self) -> np.ndarray:
@@ -444,13 +447,15 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     Xs, obs = X[::stride], observed[::stride]
     T = Xs.shape[0]
     n = j.size
-    med, mad, wide = (np.full(n, np.nan) for _ in range(3))
+    med, mad, wide, cone = (np.full(n, np.nan) for _ in range(4))
+    direction = np.full((n, X.shape[2]), np.nan)
     count = np.zeros(n, np.int64)
     block = max(1, PAIR_BLOCK // max(T, 1))
     for a in range(0, n, block):
         jb, kb = j[a:a + block], k[a:a + block]
         both = obs[:, jb] & obs[:, kb]
-        D = np.linalg.norm(Xs[:, jb] - Xs[:, kb], axis=-1)
+        V = Xs[:, jb] - Xs[:, kb]
+        D = np.linalg.norm(V, axis=-1)
         D[~both] = np.nan
         c = both.sum(axis=0)
         with np.errstate(all="ignore"):
@@ -462,8 +467,22 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
         wide[a:a + block] = np.where(keep, w, np.nan)
+        direction[a:a + block], cone[a:a + block] = _orientation(V, D, c, keep)
         count[a:a + block] = c
-    return PairStats(j, k, med, mad, wide, count, X.shape[1])
+    return PairStats(j, k, med, mad, wide, count, X.shape[1], direction, cone)
+
+
+def _orientation(V: np.ndarray, D: np.ndarray, c: np.ndarray, keep: np.ndarray):
+    """Mean unit vector of each pair's difference ``V`` (T, n, D) over its frames with a finite
+    distance ``D`` (T, n), and the 95th percentile of the angle to it (NaN where not ``keep``)."""
+    with np.errstate(all="ignore"):
+        U = np.where(np.isfinite(D)[..., None], V / D[..., None], 0.0)
+        m = U.sum(axis=0)
+        m /= np.linalg.norm(m, axis=-1, keepdims=True)
+        angle = np.arccos(np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0))
+        angle[~np.isfinite(D)] = np.nan
+        cone = _col_quantile(np.sort(angle, axis=0), c, 0.95)
+    return np.where(keep[:, None], m, np.nan), np.where(keep, cone, np.nan)
 
 
 def _col_quantile(S: np.ndarray, n: np.ndarray, q: float) -> np.ndarray:

@@ -66,6 +66,9 @@ class RigidPairs:
     J: int                  # markers in the recording
     tol: float = 0.005      # the rigidity tolerance, relative to ``scale``
     wide: np.ndarray | None = None  # 95th percentile of |distance - median| while both observed
+    direction: np.ndarray | None = None  # (n, 3) mean unit vector from k to j while both observed
+    cone: np.ndarray | None = None  # 95th percentile angle (radians) to ``direction`` then
+    cover: np.ndarray | None = None  # share of the frames in which both are observed
 
     def matrix(self, values, fill=np.nan) -> np.ndarray:
         """A dense symmetric ``(J, J)`` array of per-pair ``values`` (for small J: reports)."""
@@ -123,7 +126,9 @@ def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
     finite = np.isfinite(st.distance)
     duplicate = finite & (st.distance <= tol * scale)
     rigid = finite & (st.spread <= tol * scale)
-    return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide)
+    frames = -(-X.shape[0] // -(-X.shape[0] // PAIR_FRAMES))         # the frames pair_stats read
+    return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide,
+                      st.direction, st.cone, st.count / max(frames, 1))
 
 
 def _scale(X, observed, st, min_frames) -> float:
