@@ -19,6 +19,7 @@ on 3 000 frames x 41 markers::
     OMP_NUM_THREADS=1 python scripts/eval_segments.py --limit 6 --no-default
     OMP_NUM_THREADS=1 python scripts/eval_segments.py --reuse experiments/results/segments/cases.csv
                                                       # the peers' columns from an earlier run
+    OMP_NUM_THREADS=1 python scripts/eval_segments.py --agreement-only   # the segments alone
 """
 from __future__ import annotations
 
@@ -186,15 +187,19 @@ def agreement_table(folder: Path) -> str:
     """Agreement (share of the named memberships the data-found segments reproduce) and purity
     (share of the found memberships inside their matched named segment) per recording."""
     lines = ["| recording | agreement | purity | found | named |", "|---|---:|---:|---:|---:|"]
+    shares = []
     for name in AGREEMENT:
         if not (folder / name).exists():
             continue
         seq = real_gap_suite.complete(folder / name)
         named = Segments.from_names(seq.labels)
         found = Segments.from_data(seq.points, seq.labels)
-        lines.append(f"| {name} | {100 * agreement(found, named, seq.labels):.1f} % | "
-                     f"{100 * purity(found, named, seq.labels):.1f} % | {len(found)} | "
-                     f"{len(named)} |")
+        shares.append((agreement(found, named, seq.labels), purity(found, named, seq.labels)))
+        lines.append(f"| {name} | {100 * shares[-1][0]:.1f} % | {100 * shares[-1][1]:.1f} % | "
+                     f"{len(found)} | {len(named)} |")
+    if shares:
+        a, p = 100 * np.mean(shares, axis=0)
+        lines.append(f"| **mean** | **{a:.2f} %** | **{p:.2f} %** | | |")
     return "\n".join(lines)
 
 
@@ -228,10 +233,15 @@ def main(argv=None) -> None:
     ap.add_argument("--csv", type=Path, help="write the per-case RMSEs here as they finish")
     ap.add_argument("--reuse", type=Path, help="take the peers' RMSEs (gapfill's samples are "
                                                "recomputed) from this CSV of an earlier run")
+    ap.add_argument("--agreement-only", action="store_true",
+                    help="print only the agreement table (seconds: no fills)")
     ap.add_argument("--doc", type=Path, help="also write the tables into this docs page, between "
                                              "its <!-- segments:start/end --> markers")
     args = ap.parse_args(argv)
     folder = data_dir(REPO)
+    if args.agreement_only:
+        print(agreement_table(folder))
+        return
     cases = real_gap_suite.cases(folder)
     if args.only:
         cases = [c for c in cases if any(x in c.name for x in args.only.split(","))]

@@ -19,9 +19,12 @@ one format:
   measured pairs) merges the most rigid first; the cut is the first merge at which the number of
   clusters of at least three markers (what a Kabsch fit needs) is largest -- no threshold in mm, so
   the clusters do not depend on the units. A marker left in a smaller group gets a segment of its
-  own: the group and its most rigid neighbours up to three markers. A marker as rigid with another
-  cluster as that cluster's members are with each other (a knee marker: thigh and shank) belongs
-  to both, as in the name tables.
+  own: the group and its most rigid neighbours up to three markers, and so does a group of two
+  or more that a merge below the cut folded into a larger cluster (one height cuts the whole
+  body: a joint the trial leaves still folds its pair into the neighbour segment), where that
+  segment is not inside one already found. A marker as rigid with another cluster as that
+  cluster's members are with each other (a knee marker: thigh and shank) belongs to both, as in
+  the name tables.
 * **a user file** (:func:`load`): the YAML that :meth:`Segments.to_yaml` writes (``torchfill info
   --segments`` prints it for the segments in use), so a user can check, edit and pass it back
   (``fill(..., segments=path)``, ``torchfill fill --segments FILE``).
@@ -500,15 +503,20 @@ def _cluster(J: int, stats: PairStats, least: int) -> list[list[int]]:
     """The data-found segments as sorted marker indices, ordered by their first marker: the
     clusters of the cut :func:`_linkage` makes, with their joint markers
     (:func:`_joints`), and each marker left in a smaller group grown to ``least`` markers by its
-    most rigid neighbours (:func:`_grow`)."""
+    most rigid neighbours (:func:`_grow`); a group of two or more that the cut folded into a
+    cluster (:func:`_absorbed`) is grown so too where that is not inside a segment found already
+    (a still elbow: the upper arm's pair joined the forearm; grown, it takes the shoulder)."""
     ok = np.isfinite(stats.spread)
     nb: list[dict[int, float]] = [{} for _ in range(J)]
     for a, b, x in zip(stats.j[ok].tolist(), stats.k[ok].tolist(), stats.spread[ok].tolist()):
         nb[a][b] = nb[b][a] = x
-    groups, height = _groups(J, _linkage(nb, least))
+    merges = _linkage(nb, least)
+    groups, height = _groups(J, merges)
     found = [g + _joints(g, h, nb) for g, h in zip(groups, height) if len(g) >= least]
     found += [_grow(g, least, nb) for g in groups if len(g) < least]
     unique = {tuple(sorted(g)) for g in found if len(g) >= least}
+    inner = {tuple(sorted(_grow(g, least, nb))) for g in _absorbed(J, merges, least)}
+    unique |= {g for g in inner if len(g) >= least and not any(set(g) <= set(o) for o in unique)}
     return [list(g) for g in sorted(unique)]
 
 
@@ -565,6 +573,20 @@ def _groups(J: int, merges) -> tuple[list[list[int]], list[float]]:
         members[J + i] = members.pop(a) + members.pop(b)
         height[J + i] = h
     return list(members.values()), [height[c] for c in members]
+
+
+def _absorbed(J: int, merges, least: int) -> list[list[int]]:
+    """Groups of two to ``least - 1`` markers that one of ``merges`` joined to a cluster of at
+    least ``least``: rigid bodies of their own below the cut, which the one height of the cut
+    (set where another part of the body reaches the most clusters) folded into a neighbour."""
+    members = {j: [j] for j in range(J)}
+    out = []
+    for i, (a, b, _) in enumerate(merges):
+        for x, y in ((a, b), (b, a)):
+            if 2 <= len(members[x]) < least <= len(members[y]):
+                out.append(members[x])
+        members[J + i] = members.pop(a) + members.pop(b)
+    return out
 
 
 def _mean_spread(g: list[int], nb: list[dict[int, float]]) -> dict[int, tuple[float, int]]:
