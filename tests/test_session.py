@@ -72,6 +72,28 @@ def test_default_with_session(cmu85):
     assert np.array_equal(out.points[seen], X.points[seen])
 
 
+def test_a_marker_never_seen_is_placed_from_the_training(cmu85):
+    """A marker missing from the whole trial (fallen off) is rebuilt from its segment-mates with
+    the local coordinates the subject's other trial shows; without training it stays NaN."""
+    _, truth, _, train = cmu85
+    j = truth.short_labels().index("RTOE")
+    mask = np.zeros(truth.points.shape[:2], dtype=bool)
+    mask[:, j] = True
+    X = _hide(truth, mask)
+    with pytest.warns(torchfill.UnfilledWarning, match="never observed"):
+        alone = torchfill.fill(X, "linear")
+    assert np.isnan(alone.points[:, j]).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        session, std = torchfill.fill(X, training=[train], return_std=True)
+    placed = np.isfinite(session.points[:, j]).all(axis=1)
+    err = np.linalg.norm(session.points[placed, j] - truth.points[placed, j], axis=1)
+    assert placed.mean() > 0.9 and np.median(err) < 15.0, (placed.mean(), np.median(err))
+    assert np.isfinite(std[placed, j]).all()
+    seen = np.isfinite(X.points)
+    assert np.array_equal(session.points[seen], X.points[seen])
+
+
 def test_training_units_rate_and_labels(cmu85):
     X, truth, mask, train = cmu85
     from torchfill.filling import _align_training

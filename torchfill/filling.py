@@ -18,6 +18,9 @@ from .metrics import gap_runs
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
+from .solvers.auto import PARTIAL
+from .solvers.rigid import HOLDOUT_LAGS, body_size, segment_fill
+from .solvers.session import TRAINING_FRAMES, spread_runs
 
 _LOCK = threading.Lock()
 
@@ -220,6 +223,8 @@ def fill_case(data, method: str, params: dict, *, training=None, mask=None,
                     max_gap is not None)
     if bool(case.todo.any()):
         _solve(case, window, workers, progress, constraints, return_std, solve or _fit)
+    if case.training is not None and bool(case.never.any()):
+        _place_from_training(case)
     return _finish(case, constraints, extrapolate, reject, max_gap, return_std)
 
 
@@ -247,6 +252,7 @@ class _Case:
     std: torch.Tensor
     shown: object = None             # the progress display, while solving
     anchored: torch.Tensor | None = None     # fills the soft distances keep (auto's segments)
+    placed: torch.Tensor | None = None       # never-observed markers placed from the training
 
 
 def _prepare(data, method, params, training, mask, dtype, segments, constraints,
@@ -270,14 +276,13 @@ def _prepare(data, method, params, training, mask, dtype, segments, constraints,
         out[mask] = float("nan")
     unfit = missing | _huge(points, missing)     # what the solver does not see
     never = unfit.all(dim=0)
-    if bool(never.any()):
-        warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: "
-                      f"{_marker_names(data, never)}", UnfilledWarning, stacklevel=4)
+    if bool(never.any()) and training is None:
+        _warn_never(data, never)
     todo = missing & ~never
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0,
             "dtype": str(work or points.dtype).removeprefix("torch.")}
     seg_idx = None
-    if bool(todo.any()) and points.shape[2] == 3 and (
+    if (bool(todo.any()) or training is not None) and points.shape[2] == 3 and (
             constraints or segments is not None or "segments" in solver.declared_params()):
         seg_idx = _segment_indices(segments, data, points, unfit)
     return _Case(data, kind, method, params, solver, work, points, out,
@@ -354,7 +359,8 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
                                               case.seg_idx, case.solver.spatial,
                                               case.anchored)
         if extrapolate is not None:
-            info["untested"] = _leave_untested(out, std, case.missing, data)
+            tested = std if case.placed is None else std.masked_fill(case.placed, float("nan"))
+            info["untested"] = _leave_untested(out, tested, case.missing, data)
             if case.seg_idx:
                 info["alone"] = _leave_alone(out, std, case.missing, data, case.seg_idx)
         if reject is not None and isinstance(data, MarkerSequence):
@@ -373,6 +379,44 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     if case.kind == "sequence":
         result.meta["std"] = std.cpu().numpy()
     return result, std.cpu().numpy()
+
+
+def _warn_never(data, never: torch.Tensor) -> None:
+    warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: "
+                  f"{_marker_names(data, never)}", UnfilledWarning, stacklevel=5)
+
+
+def _place_from_training(case: _Case) -> None:
+    """Markers never observed in the recording but seen in the training recordings (a marker
+    that fell off, or was not placed, in this trial): rebuilt in every frame with three or more
+    segment-mates observed, from the local coordinates the training frames show (the rigid
+    reconstruction of :func:`torchfill.solvers.rigid.segment_fill` on the recording's observed
+    frames stacked with the training's), where its own error estimate is as small as ``auto``
+    asks of its rigid candidate (``PARTIAL``); the estimate comes with the fill. The rest stays
+    NaN (cmu_85_02 under numediart_03_rolling's mask, cmu_85_12 as training: RMT5 placed at a
+    median 21 mm; RWRA, whose forearm segment bends at the wrist, at 108 mm with an estimate of
+    179 mm, left NaN)."""
+    out, J = case.out, case.out.shape[1]
+    if case.seg_idx and out.shape[2] == 3:
+        train = _align_training(case.training, case.data, list(range(J)), J)
+        train = [spread_runs(t, TRAINING_FRAMES // len(train)) for t in train]
+        P = torch.where(case.unfit[..., None], float("nan"), out).double().cpu()
+        apart = torch.full((HOLDOUT_LAGS[-1], *P.shape[1:]), float("nan"), dtype=P.dtype)
+        S = torch.cat([P, apart, *train]).numpy()   # another trial is far in time: its error too
+        est, std, _ = segment_fill(S, None, case.seg_idx)
+        T = out.shape[0]
+        size = body_size(S[:T], np.isfinite(S[:T]).all(axis=2))      # as auto's rigid candidate
+        put = np.sqrt(3.0) * np.nan_to_num(std[:T], nan=np.inf) <= PARTIAL["rigid"]["max_error"] * size
+        put = torch.from_numpy(put) & case.never.cpu()
+        case.placed = put.to(out.device)
+        out[case.placed] = torch.from_numpy(est[:T][put.numpy()]).to(out)
+        case.std[case.placed] = torch.from_numpy(std[:T][put.numpy()]).to(case.std)
+        case.todo = case.todo | case.placed
+        if case.shown is None:                          # nothing else was missing
+            case.shown = _progress(False, windows=0, method=case.method)
+    left = case.never & ~torch.isfinite(out).all(dim=2).any(dim=0)
+    if bool(left.any()):
+        _warn_never(case.data, left)
 
 
 def _solver_params(method: str, params: dict | None, training, legacy: dict,
