@@ -91,6 +91,12 @@ HOLDOUT_FRAMES = 64
 #: A mate is trusted in a frame while its distances to the other mates stay within this many
 #: times their observed band (twice the robust spread plus the floor); see :func:`_consistency`.
 CONSISTENT = 3.0
+#: A mate counts towards the three a pose needs only while its consistency factor (see
+#: :func:`_consistency`) stays above this: with a head's four markers and one of them swapped with
+#: a marker 1.8 m away (biomechzoo hockey's LFHD over its last frames), the two others left and a
+#: down-weighted ghost fixed no rotation, and the hold-out errors of those frames made the head's
+#: estimate too large for the default to use its 3.7 mm fills.
+FIRM = 0.5
 #: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
 HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
@@ -227,7 +233,14 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     P = np.nan_to_num(X[src][:, M])
     Q = np.nan_to_num(X[dst][:, M])
     if shape is not None:
-        W = W * _consistency(P, W > 0, *shape) * _consistency(Q, W > 0, *shape)
+        C = _consistency(P, W > 0, *shape) * _consistency(Q, W > 0, *shape)
+        W = W * C
+        firm = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates
+        if not firm.all():            # a mate off its place leaves too few to fix the pose
+            keep = np.flatnonzero(ok)[firm]
+            ok = np.zeros_like(ok)
+            ok[keep] = True
+            src, dst, P, Q, W = src[firm], dst[firm], P[firm], Q[firm], W[firm]
     R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
     R, t = R.numpy(), t.numpy()
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
