@@ -61,6 +61,13 @@ SOFT_ITER = 10
 #: The band of this test is at least ``tol x scale`` of the rigid pairs: numediart_03_rolling's
 #: LR_FM5-LR_FM2 (spread 0.11 mm, p95 4.7 mm) was dropped and torn to 299 mm (now 193 mm).
 SOFT_WIDE = 3.0
+#: A rigid pair seen turning (95th-percentile angle around its mean direction) by less than this
+#: many radians has not shown that its distance holds as the joints between its markers move: a
+#: fill that turns it further gets the chord of the extra turn added to its band (see
+#: :func:`_unseen_turn`). numediart_03_rolling's mask on hdm05_bd_05-01: the pairs of an
+#: upper-arm marker seen only while still turned 0.024-0.040; the head, forearm and thigh pairs
+#: of codamotion's mask on cmu_135_02 turned 0.10-1.7, and widening theirs lost 22.6 -> 27.3 mm.
+SOFT_CONE = 0.1
 #: Soft distances are projected on this many (frame, pair) entries at a time.
 SOFT_BLOCK = 1 << 18
 #: Observed markers a frame needs for a spatial method's trial-end fill there not to count as an
@@ -286,8 +293,9 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
         return
     d0 = pairs.distance[rigid]
     band = band[rigid]
-    cone = None if pairs.cone is None else (pairs.direction[rigid], pairs.cone[rigid],
-                                            pairs.cover[rigid])
+    cone = None if pairs.cone is None else (      # turned beyond SOFT_CONE: rigid in any pose
+        pairs.direction[rigid], np.where(pairs.cone < SOFT_CONE, pairs.cone, np.inf)[rigid],
+        pairs.cover[rigid])
     rows = np.flatnonzero((free[:, j] | free[:, k]).any(axis=1))
     size = max(1, SOFT_BLOCK // j.size)
     for a in range(0, rows.size, size):
