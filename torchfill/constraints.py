@@ -20,6 +20,9 @@ changes. The post-step below takes the method's fill and, in this order:
    median-based spread also calls a pair rigid that is still most of the time and bends now and
    then: on hdm05_bd_05-01 such a pair took one 208-frame gap from 2.5 to 46 mm); the band of
    that test is at least the rigidity tolerance (a pair seen almost still has a tiny band),
+   a pair seen turning less than ``SOFT_CONE`` while observed (its distance measured only
+   while the joints between its markers were still) gets the chord of a fill's turn beyond
+   that range added to its band, in proportion to the frames it was not seen in,
    ``SOFT_ITER`` Jacobi iterations of weight ``SOFT_WEIGHT`` (a position-
    based projection, as MocapRecovery's skeleton constraint keeps neighbour distances), on
    ``auto``'s average too, although its candidates each went through it: without it the

@@ -84,7 +84,9 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         ``pca_gloersen``) learn from their observed frames too (see
         :mod:`torchfill.solvers.session`), ``auto`` adds those as candidates ``NAME+session``
         that its hold-out weighs against the recording's own, ``pca_train``/``pca_blackout``
-        take them as their training set. MarkerSequences are matched to ``data`` by marker label
+        take them as their training set; a marker never observed in ``data`` is placed from its
+        segment-mates with the local coordinates the training shows, where that rigid fill's
+        own error estimate is small. MarkerSequences are matched to ``data`` by marker label
         (``Subject:`` prefixes ignored; markers one lacks are NaN there, with a warning; none in
         common is an error), put in ``data``'s units and resampled to its rate (nearest frame);
         arrays must already have ``data``'s markers in order. They are never changed.
@@ -158,7 +160,8 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
     -------
     The same kind as ``data`` (a new object): a MarkerSequence, an ndarray, or a tensor on the same
     device and of the same dtype. Wherever the input was finite (and not masked), the output is the
-    input bit-for-bit. Markers never observed stay NaN, with an :class:`UnfilledWarning`.
+    input bit-for-bit. Markers never observed stay NaN (unless ``training`` places them), with an
+    :class:`UnfilledWarning`.
     With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
     MarkerSequence).
     """
