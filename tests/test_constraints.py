@@ -184,6 +184,26 @@ def test_soft_distances_hold_a_rigid_pair_with_a_tiny_spread_and_rare_jitter():
     assert np.array_equal(out[~missing], X[~missing])
 
 
+def test_soft_distances_leave_a_pair_seen_only_while_still_free_to_bend():
+    """An upper-arm marker seen only in a still fifth of the trial measures a constant distance
+    to the wrist; when the elbow bends in its gap, the fill that follows the bend is kept, not
+    pulled back to that distance (numediart_03_rolling's mask on hdm05_bd_05-01)."""
+    T = 600
+    t = np.arange(T) / 120.0
+    bend = np.where(np.arange(T) < 120, 0.0, 1.2 * np.sin(np.pi * (np.arange(T) - 120) / 480))
+    shoulder = np.stack([np.zeros(T), np.zeros(T), np.full(T, 1400.0)], 1)
+    elbow = shoulder + [0, 0, -300.0]
+    wrist = elbow + 250 * np.stack([np.sin(bend), np.zeros(T), -np.cos(bend)], 1)
+    upper = shoulder + [0, 40.0, -150]                                  # on the upper arm
+    pelvis = np.stack([200 * np.sin(0.3 * t), np.zeros(T), np.full(T, 900.0)], 1)
+    X = np.stack([upper, wrist, elbow, pelvis], 1)    # two rigid partners: no rigid donors
+    missing = np.zeros((T, 4), dtype=bool)
+    missing[120:, 0] = True                 # the upper-arm marker: seen only before the bend
+    out, _ = constrain(X, missing)          # the fill is the truth
+    assert np.abs(out[120:, 0] - X[120:, 0]).max() < 2.0   # mm (held to 402 mm: 27 mm off)
+    assert np.array_equal(out[~missing], X[~missing])
+
+
 def test_soft_distances_hold_an_anchored_fill_still_and_move_its_partner():
     """auto's fills from segment-mates are anchored: the soft distances move only the partner."""
     T = 600
