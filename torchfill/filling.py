@@ -408,8 +408,8 @@ def _place_from_training(case: _Case) -> None:
         S = torch.cat([P, apart, *train]).numpy()   # another trial is far in time: its error too
         est, std, _ = segment_fill(S, None, case.seg_idx)
         T = out.shape[0]
-        size = body_size(S[:T], np.isfinite(S[:T]).all(axis=2))      # as auto's rigid candidate
-        put = np.sqrt(3.0) * np.nan_to_num(std[:T], nan=np.inf) <= PARTIAL["rigid"]["max_error"] * size
+        limit = PARTIAL["rigid"]["max_error"] * body_size(S[:T], np.isfinite(S[:T]).all(axis=2))
+        put = np.sqrt(3.0) * np.nan_to_num(std[:T], nan=np.inf) <= limit   # as auto's rigid
         put = torch.from_numpy(put) & case.never.cpu()
         case.placed = put.to(out.device)
         out[case.placed] = torch.from_numpy(est[:T][put.numpy()]).to(out)
