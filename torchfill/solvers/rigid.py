@@ -117,13 +117,33 @@ def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
     X = _numpy(X)
     observed = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
     _segments.PAIR_FRAMES, _segments.PAIR_BLOCK = PAIR_FRAMES, PAIR_BLOCK
-    st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
     J = X.shape[1]
-    scale = _scale(X, observed, st, min_frames)
+    st = every = None
+    if pairs is None and J * (J - 1) // 2 <= SCALE_PAIRS:    # the scale measures every pair:
+        every = _segments.pair_stats(X, observed, np.triu_indices(J, 1), min_frames=min_frames)
+        st = _subset(every, _segments.neighbour_pairs(X, observed))   # each pair on its own
+    if st is None:
+        st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
+        every = st
+    scale = _scale(X, observed, every, min_frames)
     finite = np.isfinite(st.distance)
     duplicate = finite & (st.distance <= tol * scale)
     rigid = finite & (st.spread <= tol * scale)
     return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide)
+
+
+def _subset(st: "_segments.PairStats", pairs: tuple[np.ndarray, np.ndarray]
+            ) -> "_segments.PairStats | None":
+    """The statistics of ``pairs`` taken from ``st`` (None unless ``st`` measured each of them):
+    a pair's statistics depend on its own two tracks only, so these are the bits
+    :func:`torchfill.segments.pair_stats` gives for ``pairs`` alone."""
+    j, k = (np.asarray(p, dtype=np.int64) for p in pairs)
+    order = np.lexsort((k, j))
+    i = st.lookup(j[order], k[order])
+    if (i < 0).any():                                   # a pair (j, j) of a stored-twice point
+        return None
+    return _segments.PairStats(st.j[i], st.k[i], st.distance[i], st.spread[i], st.wide[i],
+                               st.count[i], st.J)
 
 
 def _scale(X, observed, st, min_frames) -> float:
@@ -236,7 +256,8 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
     (one point far from its place in the segment) stops steering the fit, while one bad mate
     cannot condemn the good ones it is measured against."""
-    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1)
+    dx, dy, dz = (P[:, :, None, c] - P[:, None, :, c] for c in range(3))
+    D = np.sqrt((dx * dx + dy * dy) + dz * dz)       # np.linalg.norm's sum, without its reduce
     Z = np.abs(D - D0) / band
     pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
     pair &= ~np.eye(P.shape[1], dtype=bool)
