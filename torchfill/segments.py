@@ -39,6 +39,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from .metrics import norm_last
+
 __all__ = ["Segments", "resolve", "load", "pair_stats", "neighbour_pairs", "normalize",
            "agreement", "purity"]
 
@@ -450,7 +452,7 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     for a in range(0, n, block):
         jb, kb = j[a:a + block], k[a:a + block]
         both = obs[:, jb] & obs[:, kb]
-        D = np.linalg.norm(Xs[:, jb] - Xs[:, kb], axis=-1)
+        D = norm_last(Xs[:, jb] - Xs[:, kb])
         D[~both] = np.nan
         c = both.sum(axis=0)
         with np.errstate(all="ignore"):

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from .. import segments as _segments
+from ..metrics import norm_last
 from .base import Param, Solver, register
 from .interp import Pchip
 
@@ -256,8 +257,7 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
     (one point far from its place in the segment) stops steering the fit, while one bad mate
     cannot condemn the good ones it is measured against."""
-    dx, dy, dz = (P[:, :, None, c] - P[:, None, :, c] for c in range(3))
-    D = np.sqrt((dx * dx + dy * dy) + dz * dz)       # np.linalg.norm's sum, without its reduce
+    D = norm_last(P[:, :, None] - P[:, None])
     Z = np.abs(D - D0) / band
     pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
     pair &= ~np.eye(P.shape[1], dtype=bool)
