@@ -243,11 +243,24 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     P = np.nan_to_num(X[src][:, M])
     Q = np.nan_to_num(X[dst][:, M])
     if shape is not None:
-        W = W * _consistency(P, W > 0, *shape) * _consistency(Q, W > 0, *shape)
+        W = W * _consistency_once(P, src, W > 0, shape) * _consistency_once(Q, dst, W > 0, shape)
     R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
     R, t = R.numpy(), t.numpy()
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
     return out, ok
+
+
+def _consistency_once(P: np.ndarray, frames: np.ndarray, use: np.ndarray, shape
+                      ) -> np.ndarray:
+    """:func:`_consistency` of the rows of ``P`` taken from ``frames``, each distinct (frame,
+    mates used) computed once: a gap's frames are all carried from the same reference frame."""
+    if use.shape[1] > 40:                                   # the key would overflow
+        return _consistency(P, use, *shape)
+    key = frames.astype(np.int64) * (1 << use.shape[1]) + use @ (1 << np.arange(use.shape[1]))
+    _, first, back = np.unique(key, return_index=True, return_inverse=True)
+    if first.size > 0.8 * key.size:                         # few repeats: not worth the copy
+        return _consistency(P, use, *shape)
+    return _consistency(P[first], use[first], *shape)[back.reshape(-1)]
 
 
 def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
