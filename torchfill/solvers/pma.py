@@ -276,13 +276,14 @@ def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
         return None
     key = tuple(torch.nonzero(refs).flatten().tolist())
     if key not in cache:
-        X = torch.cat([torch.ones_like(Y[:, 0, :1]), Y[:, refs].reshape(Y.shape[0], -1)], 1)
         rows = torch.nonzero(~missing[:, k] & ~missing[:, refs].any(1)).flatten()
         if rows.numel() < 4:
             return None
         tr = stride_rows(rows, 500)
+        Yr = Y[tr]                                       # the training rows only
+        X = torch.cat([torch.ones_like(Yr[:, 0, :1]), Yr[:, refs].reshape(tr.numel(), -1)], 1)
         Yn, mu, sd = normalize(Y[:, k], tr)
-        cache[key] = (lstsq(X[tr], Yn[tr]), mu, sd)
+        cache[key] = (lstsq(X, Yn[tr]), mu, sd)
     beta, mu, sd = cache[key]
     X = torch.cat([torch.ones_like(Y[lo:hi, 0, :1]), Y[lo:hi][:, refs].reshape(hi - lo, -1)], 1)
     pred = X @ beta * sd + mu
