@@ -27,8 +27,10 @@ def fingerprint(*parts: Any) -> bytes | None:
         if isinstance(p, torch.Tensor):
             if p.device.type != "cpu":
                 return None
-            p = p.detach().resolve_conj().resolve_neg().contiguous().numpy()
-        if isinstance(p, np.ndarray):
+            h.update(repr((str(p.dtype), tuple(p.shape))).encode())
+            p = p.detach().resolve_conj().resolve_neg().contiguous().reshape(-1)
+            h.update(p.view(torch.uint8).numpy().data)          # any dtype, bfloat16 too
+        elif isinstance(p, np.ndarray):
             h.update(repr((p.dtype.str, p.shape)).encode())
             h.update(np.ascontiguousarray(p).view(np.uint8).reshape(-1).data)
         else:
