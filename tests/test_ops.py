@@ -313,3 +313,22 @@ def test_windowed_fill_in_threads_leaves_other_threads_thread_count_alone():
     assert len(counts) > 10 and set(counts) == {2}, sorted(set(counts))
     assert (torch.initial_seed(), torch.get_default_dtype()) == seeds
     assert np.isfinite(out[mask]).all()
+
+
+def test_memo_keeps_a_result_by_the_inputs_content():
+    from torchfill.ops.cache import Memo
+    memo, calls = Memo(entries=2), []
+
+    def f(x):
+        calls.append(1)
+        return x * 2
+    x = torch.arange(6.0)
+    assert torch.equal(memo(lambda: f(x), x, "a"), x * 2)
+    assert torch.equal(memo(lambda: f(x.clone()), x.clone(), "a"), x * 2)   # equal content: kept
+    assert len(calls) == 1
+    memo(lambda: f(x), x, "b")                                              # another argument
+    memo(lambda: f(x + 1), x + 1, "a")                                      # other content
+    memo(lambda: f(x), x.to(torch.float64), "a")                            # other dtype
+    assert len(calls) == 4
+    memo(lambda: f(x), x, "a")                            # pushed out by the last two entries
+    assert len(calls) == 5

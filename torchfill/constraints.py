@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .metrics import gap_runs, step_limit, volume
+from .metrics import gap_runs, norm_last, step_limit, volume
 from .solvers.rigid import RigidPairs, rigid_fill, rigid_pairs
 
 #: Weight of one soft-distance projection step (0 = off, 1 = full projection each iteration).
@@ -323,7 +323,7 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     ia, ib = t * J + a, t * J + b
     for _ in range(SOFT_ITER):
         diff = F[t, a] - F[t, b]                                           # (entries, D)
-        n = np.linalg.norm(diff, axis=1)
+        n = norm_last(diff)
         err = np.clip(n - d0, -band, band) - (n - d0)      # back inside the observed band
         use = np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():

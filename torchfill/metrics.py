@@ -86,12 +86,25 @@ def score(filled, truth, mask) -> dict[str, float]:
 # ``filled`` (T, J, 3) is a fill's output, ``missing`` (T, J) the samples it filled (NaN where a
 # fill left a sample out counts as nothing); ``observed`` = ~missing & finite.
 
+def norm_last(d) -> np.ndarray:
+    """``np.linalg.norm(d, axis=-1)`` of a real array, the same bits: over a last axis shorter
+    than 8 numpy's reduce adds the squares one after another, as here, without the reduce's cost
+    on a short axis (a fifth of the time on (n, 3))."""
+    d = np.asarray(d)
+    if not 0 < d.shape[-1] < 8 or np.iscomplexobj(d):
+        return np.linalg.norm(d, axis=-1)
+    s = d[..., 0] * d[..., 0]
+    for c in range(1, d.shape[-1]):
+        s = s + d[..., c] * d[..., c]
+    return np.sqrt(s)
+
+
 def observed_steps(points, observed) -> np.ndarray:
     """Lengths of the one-frame steps between two observed samples of one marker."""
     X = np.asarray(points, dtype=np.float64)
     observed = np.asarray(observed, dtype=bool)
     both = observed[1:] & observed[:-1]
-    return np.linalg.norm(X[1:] - X[:-1], axis=2)[both]
+    return norm_last(X[1:] - X[:-1])[both]
 
 
 def step_limit(points, observed, *, q: float = 99.9, factor: float = 1.5) -> float:

@@ -42,6 +42,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from .metrics import norm_last
+
 __all__ = ["Segments", "resolve", "load", "pair_stats", "neighbour_pairs", "normalize",
            "agreement", "purity"]
 
@@ -458,7 +460,7 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         jb, kb = j[a:a + block], k[a:a + block]
         both = obs[:, jb] & obs[:, kb]
         V = Xs[:, jb] - Xs[:, kb]
-        D = np.linalg.norm(V, axis=-1)
+        D = norm_last(V)
         D[~both] = np.nan
         c = both.sum(axis=0)
         with np.errstate(all="ignore"):

@@ -174,3 +174,19 @@ def test_pma_fills_a_mostly_absent_marker():
     lin = torchfill.fill(gappy, method="linear", constraints=False)
     assert np.isfinite(out).all()
     assert metrics.rmse_missing(out, P, mask) < 0.5 * metrics.rmse_missing(lin, P, mask)
+
+
+def test_kept_pieces_give_the_bits_of_a_fresh_fill():
+    """pca_gloersen then pma on one recording (pma reuses the Gløersen fill, the rigidity score
+    and the filtered tracks kept from the first fits) equals pma computed afresh."""
+    from torchfill.solvers import gloersen, pma
+    X = rigid_body(T=240, J=8)
+    mask = gaps(240, 8)
+    given = np.where(mask[..., None], np.nan, X)
+    torchfill.fill(given, method="pca_gloersen", constraints=False)
+    torchfill.fill(given, method="li", constraints=False)
+    warm = torchfill.fill(given, method="pma", constraints=False)
+    for memo in (gloersen._KEPT, pma._KEPT_SCORE, pma._KEPT_TRACK):
+        memo.clear()
+    fresh = torchfill.fill(given, method="pma", constraints=False)
+    assert np.array_equal(warm, fresh)

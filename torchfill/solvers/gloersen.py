@@ -30,6 +30,7 @@ from __future__ import annotations
 import torch
 
 from .. import ops
+from ..ops.cache import Memo
 from . import session
 from .base import Param, Solver, register
 
@@ -105,10 +106,24 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
     ``weight_scale`` is relative to the mean distance between markers (the original's 200 mm
     over the ~700 mm of a full-body set is 0.28). A marker whose gaps leave fewer than
     ``min_markers`` other markers to reconstruct from (the original maps from as few as one, and
-    jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead."""
+    jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead.
+
+    ``auto`` asks for the same fill twice per mask (``pca_gloersen`` and ``pma``'s WPCA model):
+    the last results are kept (:class:`torchfill.ops.cache.Memo`)."""
+    fill = missing if fill is None else fill
+    args = (weight_scale, mm_weight, distal_threshold, min_cum_sv, min_markers)
+    return _KEPT(lambda: _predict(P, missing, fill, *args), P, missing, fill, *args).clone()
+
+
+#: :func:`predict_missing_markers`' last results.
+_KEPT = Memo(entries=4)
+
+
+def _predict(P: Tensor, missing: Tensor, fill: Tensor, weight_scale: float, mm_weight: float,
+             distal_threshold: float, min_cum_sv: float, min_markers: int) -> Tensor:
+    """:func:`predict_missing_markers` computed."""
     T, J, d = P.shape                       # d = 3 (markers) or 2 (image keypoints)
     out = P.clone()
-    fill = missing if fill is None else fill
     gapped = torch.nonzero(fill.any(0)).flatten()
     if len(gapped) == 0:
         return out

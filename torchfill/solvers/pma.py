@@ -48,6 +48,7 @@ from typing import ClassVar
 import torch
 
 from .. import ops
+from ..ops.cache import Memo
 from .base import Param, Solver, register
 from . import session
 from .gloersen import body_centre, predict_missing_markers
@@ -175,7 +176,12 @@ def space_constraint(P: Tensor, refs: list[Tensor], ranges: list[tuple[Tensor, T
 
 def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 1000) -> Tensor:
     """Pairwise score (J x J): max distance + 20 x distance standard deviation, over frames where
-    both markers are observed (self: inf). Lower = more rigidly linked."""
+    both markers are observed (self: inf). Lower = more rigidly linked. ``auto``'s ``li``,
+    ``lgrnn`` and ``pma`` ask for the same one: the last results are kept."""
+    return _KEPT_SCORE(lambda: _rigidity(Y, missing, max_frames), Y, missing, max_frames)
+
+
+def _rigidity(Y: Tensor, missing: Tensor, max_frames: int) -> Tensor:
     rows = stride_rows(torch.arange(Y.shape[0], device=Y.device), max_frames)
     S, ok = Y[rows], ~missing[rows]
     D = torch.linalg.vector_norm(S[:, :, None] - S[:, None], dim=-1)
@@ -188,6 +194,12 @@ def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 1000) -> Tensor:
     score = dmax + 20 * std
     score = torch.where(both.sum(0) >= 2, score, torch.full_like(score, float("inf")))
     return score.fill_diagonal_(float("inf"))
+
+
+#: The last results of :func:`rigidity` and of the reference tracks' filter (one marker's track
+#: before its gaps are filled is the same in ``li``, ``lgrnn`` and ``pma``).
+_KEPT_SCORE = Memo(entries=4)
+_KEPT_TRACK = Memo(entries=512)
 
 
 # -- the models -----------------------------------------------------------------------------------
@@ -264,13 +276,14 @@ def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
         return None
     key = tuple(torch.nonzero(refs).flatten().tolist())
     if key not in cache:
-        X = torch.cat([torch.ones_like(Y[:, 0, :1]), Y[:, refs].reshape(Y.shape[0], -1)], 1)
         rows = torch.nonzero(~missing[:, k] & ~missing[:, refs].any(1)).flatten()
         if rows.numel() < 4:
             return None
         tr = stride_rows(rows, 500)
+        Yr = Y[tr]                                       # the training rows only
+        X = torch.cat([torch.ones_like(Yr[:, 0, :1]), Yr[:, refs].reshape(tr.numel(), -1)], 1)
         Yn, mu, sd = normalize(Y[:, k], tr)
-        cache[key] = (lstsq(X[tr], Yn[tr]), mu, sd)
+        cache[key] = (lstsq(X, Yn[tr]), mu, sd)
     beta, mu, sd = cache[key]
     X = torch.cat([torch.ones_like(Y[lo:hi, 0, :1]), Y[lo:hi][:, refs].reshape(hi - lo, -1)], 1)
     pred = X @ beta * sd + mu
@@ -332,7 +345,9 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
         """Marker ``j`` filtered along time (recomputed once it has been filled; the training
         rows, never filled, are filtered once for every marker)."""
         if j not in cache:
-            cache[j] = torch.cat([symfilter(Y[:T0, j], window), rest[:, j]])
+            y = Y[:T0, j]
+            cache[j] = torch.cat([_KEPT_TRACK(lambda: symfilter(y.clone(), window), y, window),
+                                  rest[:, j]])
         return cache[j]
 
     for k in gapped:

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from .. import segments as _segments
+from ..metrics import norm_last
 from .base import Param, Solver, register
 from .interp import Pchip
 
@@ -127,15 +128,35 @@ def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
     X = _numpy(X)
     observed = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
     _segments.PAIR_FRAMES, _segments.PAIR_BLOCK = PAIR_FRAMES, PAIR_BLOCK
-    st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
     J = X.shape[1]
-    scale = _scale(X, observed, st, min_frames)
+    st = every = None
+    if pairs is None and J * (J - 1) // 2 <= SCALE_PAIRS:    # the scale measures every pair:
+        every = _segments.pair_stats(X, observed, np.triu_indices(J, 1), min_frames=min_frames)
+        st = _subset(every, _segments.neighbour_pairs(X, observed))   # each pair on its own
+    if st is None:
+        st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
+        every = st
+    scale = _scale(X, observed, every, min_frames)
     finite = np.isfinite(st.distance)
     duplicate = finite & (st.distance <= tol * scale)
     rigid = finite & (st.spread <= tol * scale)
     frames = -(-X.shape[0] // -(-X.shape[0] // PAIR_FRAMES))         # the frames pair_stats read
     return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide,
                       st.direction, st.cone, st.count / max(frames, 1))
+
+
+def _subset(st: "_segments.PairStats", pairs: tuple[np.ndarray, np.ndarray]
+            ) -> "_segments.PairStats | None":
+    """The statistics of ``pairs`` taken from ``st`` (None unless ``st`` measured each of them):
+    a pair's statistics depend on its own two tracks only, so these are the bits
+    :func:`torchfill.segments.pair_stats` gives for ``pairs`` alone."""
+    j, k = (np.asarray(p, dtype=np.int64) for p in pairs)
+    order = np.lexsort((k, j))
+    i = st.lookup(j[order], k[order])
+    if (i < 0).any():                                   # a pair (j, j) of a stored-twice point
+        return None
+    return _segments.PairStats(st.j[i], st.k[i], st.distance[i], st.spread[i], st.wide[i],
+                               st.count[i], st.J, st.direction[i], st.cone[i])
 
 
 def _scale(X, observed, st, min_frames) -> float:
@@ -234,7 +255,7 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     P = np.nan_to_num(X[src][:, M])
     Q = np.nan_to_num(X[dst][:, M])
     if shape is not None:
-        C = _consistency(P, W > 0, *shape) * _consistency(Q, W > 0, *shape)
+        C = _consistency_once(P, src, W > 0, shape) * _consistency_once(Q, dst, W > 0, shape)
         W = W * C
         firm = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates if firm else np.ones_like(ok[ok])
         if not firm.all():            # a mate off its place leaves too few to fix the pose
@@ -248,6 +269,19 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     return out, ok
 
 
+def _consistency_once(P: np.ndarray, frames: np.ndarray, use: np.ndarray, shape
+                      ) -> np.ndarray:
+    """:func:`_consistency` of the rows of ``P`` taken from ``frames``, each distinct (frame,
+    mates used) computed once: a gap's frames are all carried from the same reference frame."""
+    if use.shape[1] > 40:                                   # the key would overflow
+        return _consistency(P, use, *shape)
+    key = frames.astype(np.int64) * (1 << use.shape[1]) + use @ (1 << np.arange(use.shape[1]))
+    _, first, back = np.unique(key, return_index=True, return_inverse=True)
+    if first.size > 0.8 * key.size:                         # few repeats: not worth the copy
+        return _consistency(P, use, *shape)
+    return _consistency(P[first], use[first], *shape)[back.reshape(-1)]
+
+
 def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
     """Per frame and mate (n, k), a weight factor in (0, 1]: 1 while the mate's distances to the
     other used mates stay within ``CONSISTENT`` x their bands ``band`` (k, k) of their medians
@@ -255,7 +289,7 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
     (one point far from its place in the segment) stops steering the fit, while one bad mate
     cannot condemn the good ones it is measured against."""
-    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1)
+    D = norm_last(P[:, :, None] - P[:, None])
     Z = np.abs(D - D0) / band
     pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
     pair &= ~np.eye(P.shape[1], dtype=bool)
