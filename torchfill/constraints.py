@@ -344,7 +344,7 @@ def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> n
     likely still in its gaps too; numediart_03_rolling's mask on hdm05_bd_05-01: an upper-arm
     marker seen only in a still 18 % of the trial held the whole arm to its distances)."""
     with np.errstate(all="ignore"):
-        n = np.linalg.norm(diff, axis=1)
+        n = norm_last(diff)
         angle = np.arccos(np.clip(np.einsum("nd,nd->n", diff, direction) / n, -1.0, 1.0))
         return np.nan_to_num(np.maximum(angle - cone, 0.0))
 

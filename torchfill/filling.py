@@ -410,10 +410,10 @@ def _place_from_training(case: _Case) -> None:
         T = out.shape[0]
         limit = PARTIAL["rigid"]["max_error"] * body_size(S[:T], np.isfinite(S[:T]).all(axis=2))
         put = np.sqrt(3.0) * np.nan_to_num(std[:T], nan=np.inf) <= limit   # as auto's rigid
-        put = torch.from_numpy(put) & case.never.cpu()
-        case.placed = put.to(out.device)
-        out[case.placed] = torch.from_numpy(est[:T][put.numpy()]).to(out)
-        case.std[case.placed] = torch.from_numpy(std[:T][put.numpy()]).to(case.std)
+        put &= case.never.cpu().numpy()[None, :]
+        case.placed = torch.from_numpy(put).to(out.device)
+        out[case.placed] = torch.from_numpy(est[:T][put]).to(out)
+        case.std[case.placed] = torch.from_numpy(std[:T][put]).to(case.std)
         case.todo = case.todo | case.placed
         if case.shown is None:                          # nothing else was missing
             case.shown = _progress(False, windows=0, method=case.method)

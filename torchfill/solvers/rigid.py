@@ -257,12 +257,12 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     if shape is not None:
         C = _consistency_once(P, src, W > 0, shape) * _consistency_once(Q, dst, W > 0, shape)
         W = W * C
-        firm = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates if firm else np.ones_like(ok[ok])
-        if not firm.all():            # a mate off its place leaves too few to fix the pose
-            keep = np.flatnonzero(ok)[firm]
+        posed = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates
+        if firm and not posed.all():  # a mate off its place leaves too few to fix the pose
+            keep = np.flatnonzero(ok)[posed]
             ok = np.zeros_like(ok)
             ok[keep] = True
-            src, dst, P, Q, W = src[firm], dst[firm], P[firm], Q[firm], W[firm]
+            src, dst, P, Q, W = src[posed], dst[posed], P[posed], Q[posed], W[posed]
     R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
     R, t = R.numpy(), t.numpy()
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
