@@ -272,6 +272,29 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
         assert seen[-1] == (threading.current_thread().name, 4)
 
 
+def test_thread_map_starts_the_costliest_first_and_yields_in_order():
+    import threading
+    import time
+
+    from torchfill.ops import thread_map
+
+    started, lock = [], threading.Lock()
+
+    def work(k):
+        with lock:
+            started.append(k)
+        time.sleep(0.05)                                  # both workers take one before more start
+        return -k
+
+    cost = {0: 1.0, 1: 5.0, 2: 0.5, 3: 9.0}.__getitem__
+    with _threads(2):
+        assert list(thread_map(work, range(4), workers=1, cost=cost)) == [0, -1, -2, -3]
+        assert started == [0, 1, 2, 3]                    # serial: in the items' order
+        started.clear()
+        assert list(thread_map(work, range(4), workers=2, cost=cost)) == [0, -1, -2, -3]
+    assert started[:2] in ([3, 1], [1, 3]) and sorted(started[2:]) == [0, 2]   # 9 and 5 first
+
+
 def test_windowed_fill_in_threads_leaves_other_threads_thread_count_alone():
     """A watcher thread of the caller's program samples torch's thread count (its own, and that of
     threads it starts) all through a fill whose windows run in two worker threads: it never changes (the library leaves global torch

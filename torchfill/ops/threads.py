@@ -55,8 +55,14 @@ def _mkl_set_num_threads_local() -> Callable[[int], Any] | None:
     return _find("MKL_Set_Num_Threads_Local", [None, *sorted(glob.glob(os.path.join(lib, "libtorch_cpu*")))])
 
 
-def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None) -> Iterator:
+def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None,
+               cost: Callable[[Any], float] | None = None) -> Iterator:
     """``fn(item)`` for every item, yielded in the items' order whatever finishes first.
+
+    ``cost``: the item's expected time; the costliest start first (longest-processing-time
+    order), so a long item queued last does not run alone after the others have finished
+    (``auto``'s candidates on bench_long's 3 000 frames: ``tucker_tnn``, the longest fit, was the
+    last of nine to start).
 
     ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each worker thread
     on ``torch.get_num_threads() // workers`` intra-op threads, set in that thread only (no
@@ -80,5 +86,9 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
             set_threads(share)
         return fn(item)
 
+    order = range(len(items)) if cost is None else \
+        sorted(range(len(items)), key=lambda i: -cost(items[i]))
     with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
-        yield from pool.map(run, items)
+        futures = {i: pool.submit(run, items[i]) for i in order}
+        for i in range(len(items)):
+            yield futures.pop(i).result()

@@ -92,6 +92,12 @@ PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
 SESSION = "+session"
 TWINS = ("li", "glr", "pma", "pca_gloersen")
 ALONE = ("li", "lgrnn", "pca_gloersen")
+#: Relative time of a candidate's fit (others: 1), so that the longest start first when they run
+#: side by side (:func:`torchfill.ops.thread_map`'s ``cost``): seconds at one thread on
+#: bench_long's 3 000 frames x 41 markers (tucker_tnn 5.9, rigid 3.3, pma 2.7, lgrnn 0.8, glr 0.6,
+#: li 0.5, pchip 0.2, spline 0.1, pca_gloersen 0.1); a ``+session`` twin as its method.
+COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3,
+        "pca_gloersen": 0.3}
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -476,7 +482,8 @@ class Auto(Solver):
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
             return out
-        return ops.thread_map(attempt, names, workers)
+        return ops.thread_map(attempt, names, workers,
+                              cost=lambda name: COST.get(name.removesuffix(SESSION), 1.0))
 
     def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:
         """Each candidate fitted once with ``fit_missing`` hidden: names and fills (C, T, J, 3)."""
