@@ -175,7 +175,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         R, done = donors if donors is not None else rigid_donors(F, observed, pairs, segments,
                                                                  names)
         done = done & missing
-        F[done] = R[done]
+        np.copyto(F, R, where=done[..., None])
         del R                           # long recordings: a full-length copy fewer from here
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
@@ -193,7 +193,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     report.end_step_limit = report.step_limit * END_STEP_FACTOR / STEP_FACTOR
     _limit_steps(F, missing, report.step_limit, report, report.end_step_limit)
     _clamp_to_volume(F, bounds, missing, report)
-    F[observed] = np.asarray(filled, dtype=np.float64)[observed]
+    np.copyto(F, np.asarray(filled, dtype=np.float64), where=observed[..., None])
     _warn(report, names)
     return F, report
 

@@ -501,10 +501,9 @@ def _orientation(V: np.ndarray, D: np.ndarray, c: np.ndarray, keep: np.ndarray):
     """Mean unit vector of each pair's difference ``V`` (D, T, n) over its frames with a finite
     distance ``D`` (T, n), and the 95th percentile of the angle to it (NaN where not ``keep``)."""
     fin = np.isfinite(D)
-    U = np.empty(V.shape[1:] + V.shape[:1])     # (T, n, D): einsum's bits depend on the layout
+    U = np.zeros(V.shape[1:] + V.shape[:1])     # (T, n, D): einsum's bits depend on the layout
     with np.errstate(all="ignore"):
-        np.divide(V, D, out=np.moveaxis(U, -1, 0))
-        U[~fin] = 0.0
+        np.divide(V, D, out=np.moveaxis(U, -1, 0), where=fin)
         m = U.sum(axis=0)
         m /= np.linalg.norm(m, axis=-1, keepdims=True)
         angle = np.arccos(np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0))
