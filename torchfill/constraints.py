@@ -328,8 +328,8 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     a, b, d0, band = j[p], k[p], d0[p], band[p]
     touched, at = np.unique(np.concatenate([t * J + a, t * J + b]), return_inverse=True)
     ia, ib = at[:t.size], at[t.size:]               # each entry's two samples in ``P``
-    flat = F.reshape(T * J, D)                      # a view: F is the caller's contiguous copy
-    P = flat[touched]
+    rows, cols = np.divmod(touched, J)
+    P = F[rows, cols]
     if cone is not None:
         band = band + d0 * (1 - cone[2][p]) * _unseen_turn(P.take(ia, 0) - P.take(ib, 0),
                                                             cone[0][p], cone[1][p])
@@ -353,7 +353,7 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
         moved = True
     if moved:                       # a step adds 0.0 to the untouched samples: -0.0 becomes 0.0
         F += 0.0
-        flat[touched] = P
+        F[rows, cols] = P
 
 
 def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> np.ndarray:
