@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from .metrics import gap_runs, norm_last, step_limit, volume
+from .ops.cache import Memo
 from .solvers.rigid import RigidPairs, rigid_fill, rigid_pairs
 
 #: Weight of one soft-distance projection step (0 = off, 1 = full projection each iteration).
@@ -163,7 +164,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
-    observed = ~missing & np.isfinite(F).all(axis=2)
+    observed = ~missing & _finite(F)
     report = ConstraintReport()
     if not missing.any() or not observed.any():
         return F, report
@@ -174,7 +175,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         R, done = donors if donors is not None else rigid_donors(F, observed, pairs, segments,
                                                                  names)
         done = done & missing
-        F[done] = R[done]
+        np.copyto(F, R, where=done[..., None])
         del R                           # long recordings: a full-length copy fewer from here
     report.rigid, report.rigid_done = int(done.sum()), done
     free = missing & ~done
@@ -184,15 +185,15 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     support = observed.sum(axis=1) >= SPATIAL_MIN if spatial else np.zeros(len(F), dtype=bool)
     _limit_extrapolation(F, free, extrapolate, report, support)
     _interpolate_blackouts(F, observed, free, report)
-    free &= np.isfinite(F).all(axis=2)
+    free &= _finite(F)
     _blend_edges(F, free)
     if F.shape[2] == 3:
         _soft_distances(F, free if anchored is None else free & ~anchored, pairs)
-    report.step_limit = step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
+    report.step_limit, bounds = _observed_limits(F, observed)
     report.end_step_limit = report.step_limit * END_STEP_FACTOR / STEP_FACTOR
     _limit_steps(F, missing, report.step_limit, report, report.end_step_limit)
-    _clamp_to_volume(F, observed, missing, report)
-    F[observed] = np.asarray(filled, dtype=np.float64)[observed]
+    _clamp_to_volume(F, bounds, missing, report)
+    np.copyto(F, np.asarray(filled, dtype=np.float64), where=observed[..., None])
     _warn(report, names)
     return F, report
 
@@ -208,6 +209,15 @@ def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs | None = None, 
         segments = "auto" if names is not None else "data"
     R, done = rigid_fill(X, observed, pairs, segments, names)
     return R.numpy(), done.numpy()
+
+
+def _finite(F: np.ndarray) -> np.ndarray:
+    """``np.isfinite(F).all(axis=2)``, a coordinate at a time (a tenth of the time: numpy's
+    reduce over a last axis of 3 is slow)."""
+    ok = np.isfinite(F[..., 0])
+    for c in range(1, F.shape[2]):
+        ok &= np.isfinite(F[..., c])
+    return ok
 
 
 def _runs(mask: np.ndarray, T: int):
@@ -256,7 +266,7 @@ def _interpolate_blackouts(F, observed, free, report) -> None:
 def _blend_edges(F, free) -> None:
     """Offset each gap's fill so that it continues the trajectory at both edges (blended)."""
     T = F.shape[0]
-    ok = np.isfinite(F).all(axis=2)
+    ok = _finite(F)
     for j, a, b, _, _ in _runs(free, T):
         L = b - a
         d0 = _edge_offset(F, ok, j, a, side=-1)
@@ -310,30 +320,40 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
 
 def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place), over the
-    (frame, pair) entries with a free member only (a few of the pairs in each frame).
+    (frame, pair) entries with a free member only (a few of the pairs in each frame), on the
+    samples those entries touch only (gathered once, written back at the end).
     ``cone``: each pair's observed mean direction and angular range (see :func:`_unseen_turn`)."""
     T, J, D = F.shape
     t, p = np.nonzero(free[:, j] | free[:, k])
     a, b, d0, band = j[p], k[p], d0[p], band[p]
+    touched, at = np.unique(np.concatenate([t * J + a, t * J + b]), return_inverse=True)
+    ia, ib = at[:t.size], at[t.size:]               # each entry's two samples in ``P``
+    rows, cols = np.divmod(touched, J)
+    P = F[rows, cols]
     if cone is not None:
-        band = band + d0 * (1 - cone[2][p]) * _unseen_turn(F[t, a] - F[t, b], cone[0][p],
-                                                            cone[1][p])
+        band = band + d0 * (1 - cone[2][p]) * _unseen_turn(P.take(ia, 0) - P.take(ib, 0),
+                                                            cone[0][p], cone[1][p])
+    ca, cb = _cells(ia, D), _cells(ib, D)
     fa, fb = free[t, a], free[t, b]
     share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
-    ia, ib = t * J + a, t * J + b
+    moved = False
     for _ in range(SOFT_ITER):
-        diff = F[t, a] - F[t, b]                                           # (entries, D)
+        diff = P.take(ia, 0) - P.take(ib, 0)                               # (entries, D)
         n = norm_last(diff)
         err = np.clip(n - d0, -band, band) - (n - d0)      # back inside the observed band
         use = np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():
-            return
+            break
         step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[:, None] * diff
         sa, sb = share_a * use, share_b * use
-        C = np.stack([_sum_at(ia, sa * step[:, c], T * J) - _sum_at(ib, sb * step[:, c], T * J)
-                      for c in range(D)], axis=1)
-        count = _sum_at(ia, sa > 0, T * J) + _sum_at(ib, sb > 0, T * J)
-        F += np.nan_to_num(C / np.maximum(count, 1)[:, None]).reshape(F.shape)
+        C = _sum_at(ca, sa[:, None] * step, P.size) - _sum_at(cb, sb[:, None] * step, P.size)
+        count = np.bincount(ia[sa > 0], minlength=P.shape[0]) + \
+            np.bincount(ib[sb > 0], minlength=P.shape[0])
+        P += np.nan_to_num(C.reshape(P.shape) / np.maximum(count, 1)[:, None], copy=False)
+        moved = True
+    if moved:                       # a step adds 0.0 to the untouched samples: -0.0 becomes 0.0
+        F += 0.0
+        F[rows, cols] = P
 
 
 def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> np.ndarray:
@@ -349,9 +369,15 @@ def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> n
         return np.nan_to_num(np.maximum(angle - cone, 0.0))
 
 
+def _cells(index: np.ndarray, D: int) -> np.ndarray:
+    """The flat positions of rows ``index`` of an (n, D) array, row after row."""
+    return (index[:, None] * D + np.arange(D)).ravel()
+
+
 def _sum_at(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """``out[index[i]] += values[i]`` over a zero vector of ``size`` (NaN where a NaN was added)."""
-    return np.bincount(index, weights=values, minlength=size)
+    """``out[index[i]] += values.flat[i]`` over a zero vector of ``size`` (NaN where a NaN was
+    added), in the order of ``index``."""
+    return np.bincount(index, weights=values.ravel(), minlength=size)
 
 
 def _limit_steps(F, missing, limit: float, report, end_limit: float | None = None) -> None:
@@ -361,7 +387,7 @@ def _limit_steps(F, missing, limit: float, report, end_limit: float | None = Non
         return
     end_limit = limit if end_limit is None else end_limit
     T = F.shape[0]
-    fin = np.isfinite(F).all(axis=2)
+    fin = _finite(F)
     for j, a, b, _, _ in _runs(missing & fin, T):
         left = F[a - 1, j] if a > 0 and fin[a - 1, j] else None
         right = F[b, j] if b < T and fin[b, j] else None
@@ -395,11 +421,26 @@ def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> n
     return np.repeat(total[None] / len(steps), len(steps), axis=0) if both else steps
 
 
-def _clamp_to_volume(F, observed, missing, report) -> None:
-    lo, hi = volume(F, observed, VOLUME_MARGIN)
-    sel = missing & np.isfinite(F).all(axis=2)
-    clamped = np.clip(F[sel], lo, hi)
-    report.clamped = int((clamped != F[sel]).any(axis=1).sum())
+def _observed_limits(F, observed) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+    """The step limit and the capture volume of the ``observed`` samples of ``F``: kept for the
+    same observed samples (``auto``'s candidates share them; 25 of 30 ms of a candidate's
+    constraints on 3000 x 41 markers went to these)."""
+    def compute():
+        return (step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR),
+                volume(F, observed, VOLUME_MARGIN))
+    return _KEPT_LIMITS(compute, F[observed], observed, STEP_PERCENTILE, STEP_FACTOR,
+                        VOLUME_MARGIN)
+
+
+_KEPT_LIMITS = Memo(entries=4)
+
+
+def _clamp_to_volume(F, bounds, missing, report) -> None:
+    lo, hi = bounds
+    sel = missing & _finite(F)
+    inside = F[sel]
+    clamped = np.clip(inside, lo, hi)
+    report.clamped = int((clamped != inside).any(axis=1).sum())
     F[sel] = clamped
 
 
@@ -448,7 +489,7 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
     pairs = donors = None
     if fills.shape[-1] == 3:
         X = torch.where(missing[..., None], float("nan"), fills[0]).cpu().numpy()
-        seen = ~miss & np.isfinite(X).all(axis=2)
+        seen = ~miss & _finite(X)
         pairs = rigid_pairs(X, seen)
         donors = rigid_donors(X, seen, pairs, segments)
 
