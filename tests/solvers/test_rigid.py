@@ -9,8 +9,8 @@ import torch
 import torchfill
 from torchfill import metrics
 from torchfill.segments import Segments
-from torchfill.solvers.rigid import (_upper_nanquantile, kabsch, rigid_fill, rigid_pairs,
-                                     segment_fill)
+from torchfill.solvers.rigid import (_carry_few, _upper_nanquantile, kabsch, rigid_fill,
+                                     rigid_pairs, segment_fill)
 
 
 def _rotation(rng) -> np.ndarray:
@@ -175,3 +175,40 @@ def test_a_ghost_in_a_mates_track_does_not_steer_the_fit():
     est, _, _ = segment_fill(X, None, {"a": [0, 1, 2, 3, 4]})
     err = np.linalg.norm(est[220:, 0] - truth[220:, 0], axis=1)
     assert err.max() < 0.1
+
+
+def test_rigid_fill_does_not_jump_where_a_mate_is_the_files_own_fill(recording):
+    """walking_hybrid_1_4's R_SHANK_3 gap (frames 287..375): R_SHANK_4 and R_SHANK_1 are the
+    file's own earlier fill over parts of it, so only one or two mates are observed there; the
+    fill carries on with them rather than switching models mid-gap (it jumped 32 mm at 315)."""
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_4.c3d"))
+    k = list(seq.labels).index("R_SHANK_3")
+    assert seq.mask[287:376, k].all() and not seq.mask[[286, 376], k].any()
+    with pytest.warns(UserWarning):
+        out = torchfill.fill(seq, method="rigid")
+    steps = metrics.norm_last(np.diff(out.points[286:377, k], axis=0))
+    observed = metrics.observed_steps(seq.points[:, k:k + 1], ~seq.mask[:, k:k + 1])
+    assert np.isfinite(steps).all()
+    assert steps.max() < 1.5 * observed.max()
+    assert np.array_equal(out.points[~seq.mask], seq.points[~seq.mask])
+
+
+def test_carry_with_fewer_than_three_mates():
+    """Two mates: exact for a turn about an axis across their line (the smallest rotation), and
+    the line's end points carried onto themselves; one mate: its shift; none: unmoved."""
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(3, 4, 3))
+    x = rng.normal(size=(3, 3))
+    u = P[0, 1] - P[0, 0]
+    axis = np.cross(u, rng.normal(size=3))
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(0.7) * K + (1 - np.cos(0.7)) * K @ K
+    Q = P @ R.T + np.array([1.0, -2.0, 0.5])
+    S = np.zeros((3, 4), dtype=bool)
+    S[0, :2] = True
+    S[1, 2] = True
+    out = _carry_few(P, Q, S, x, np.ones(4))
+    np.testing.assert_allclose(out[0], R @ x[0] + np.array([1.0, -2.0, 0.5]), atol=1e-12)
+    np.testing.assert_allclose(out[1], x[1] + Q[1, 2] - P[1, 2], atol=1e-12)
+    np.testing.assert_array_equal(out[2], x[2])
