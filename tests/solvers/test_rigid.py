@@ -212,3 +212,26 @@ def test_carry_with_fewer_than_three_mates():
     np.testing.assert_allclose(out[0], R @ x[0] + np.array([1.0, -2.0, 0.5]), atol=1e-12)
     np.testing.assert_allclose(out[1], x[1] + Q[1, 2] - P[1, 2], atol=1e-12)
     np.testing.assert_array_equal(out[2], x[2])
+
+
+def test_a_hole_in_the_mates_inside_a_gap_is_carried_by_the_mates_left():
+    """Marker 0 missing over 100..159 and mate 1 over 120..139 (two mates left there): without
+    ``bridge`` those frames stay NaN, as before; with it they are carried from both sides by
+    markers 2 and 3, within a few mm of the truth and without a step beyond the marker's own;
+    the rigid method fills them so (the default's donors and candidate leave them out)."""
+    truth = _segment_motion()
+    X = truth.copy()
+    X[100:160, 0] = np.nan
+    X[120:140, 1] = np.nan
+    seg = {"a": [0, 1, 2, 3]}
+    est, _, _ = segment_fill(X, None, seg)
+    assert np.isnan(est[120:140, 0]).all() and np.isfinite(est[100:120, 0]).all()
+    est, std, _, bridged = segment_fill(X, None, seg, bridge=True)
+    assert np.array_equal(np.flatnonzero(bridged[:, 0]), np.arange(120, 140))
+    assert not bridged[:, 1:].any()
+    err = metrics.norm_last(est[120:140, 0] - truth[120:140, 0])
+    assert err.max() < 5.0 and (np.sqrt(3.0) * std[120:140, 0] >= err).all()
+    filled = torchfill.fill(X, "rigid", segments=seg, constraints=False)
+    steps = metrics.norm_last(np.diff(filled[99:161, 0], axis=0))
+    assert steps.max() < 1.5 * metrics.observed_steps(X[:, :1], np.isfinite(X[:, :1, 0])).max()
+    np.testing.assert_allclose(filled[120:140, 0], est[120:140, 0], rtol=0, atol=1e-9)

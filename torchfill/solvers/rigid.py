@@ -413,8 +413,10 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     there (walking_hybrid_1_4's R_SHANK_3: 32-55 mm where a mate's samples are the file's own
     earlier fill). A trial end is left as it is: carried from its one side, walking_hybrid_1_4's
     thigh and shank markers jumped 100-330 mm where they met the rest of the fill. The error adds
-    the anchors' larger estimate and the hold-out ``curve`` at the reach to the nearer anchor.
-    Returns the bool (T,) of the frames filled here."""
+    in quadrature the anchors' larger estimate, the hold-out ``curve`` at the reach to the nearer
+    anchor and the two sides' disagreement times the blend's weight on the farther side (the
+    turn about the mates' line that two mates do not see). Returns the bool (T,) of the frames
+    filled here."""
     T = est.shape[0]
     known = seen[:, j] | np.isfinite(est).all(axis=1)
     frame = np.arange(T)
@@ -435,7 +437,8 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     s = ((t - b) / (a - b))[:, None]
     est[t] = (1 - s) * sides[0] + s * sides[1]
     anchor = np.maximum(np.where(seen[b, j], 0.0, err[b]), np.where(seen[a, j], 0.0, err[a]))
-    err[t] = anchor + curve(np.minimum(t - b, a - t))
+    split = np.minimum(s, 1 - s)[:, 0] * norm_last(sides[1] - sides[0])     # the turn unseen
+    err[t] = np.sqrt(anchor ** 2 + curve(np.minimum(t - b, a - t)) ** 2 + split ** 2)
     bridged[t] = True
     return bridged
 
