@@ -701,8 +701,9 @@ def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
 
 @register
 class Rigid(Solver):
-    """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates; PCHIP elsewhere, with
-    a warning that counts those samples (``history_[-1]["fallback"]``).
+    """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates, carried by the mates
+    left across a hole in them inside a gap; PCHIP elsewhere, with a warning that counts those
+    samples (``history_[-1]["fallback"]``).
 
     ``segments``: a dict segment name -> marker indices (``fill()`` passes the segments it
     resolved from the labels, the data or the user's file), or None: found from the data.
