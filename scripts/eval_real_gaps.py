@@ -1,7 +1,8 @@
 """Plausibility of fills on the REAL gaps of every gapped recording in ../shared/data.
 
 For each file and method: teleports (one-frame steps touching a fill longer than 1.5 x the
-recording's 99.9th-percentile observed step), samples outside the observed volume (+10 % per
+recording's 99.9th-percentile observed step), jumps (the same against each marker's own
+observed steps: a slow marker's jump that the feet's fast steps hide), samples outside the observed volume (+10 % per
 axis), rigid-pair deviation (median / p95 over filled frames of pairs found rigid on the observed
 data), p95 velocity jump at gap edges, samples left NaN, and seconds. ``default`` is the default
 method with constraints (``fill()`` as a user calls it); the others are the methods' own fills
@@ -68,6 +69,7 @@ def plausibility(seq, out) -> dict:
     scale = 1000.0 if seq.units.strip().lower() == "m" else 1.0       # report mm
     return {
         "teleports": metrics.teleports(out.points, missing, metrics.step_limit(X, observed)),
+        "jumps": metrics.marker_jumps(out.points, missing, observed),
         "outside": metrics.outside_volume(out.points, missing, metrics.volume(X, observed)),
         "rigid_med": scale * float(np.median(dev)) if dev.size else np.nan,
         "rigid_p95": scale * float(np.percentile(dev, 95)) if dev.size else np.nan,
@@ -82,7 +84,7 @@ def main() -> None:
     parser.add_argument("--files", default=",".join(FILES))
     args = parser.parse_args()
     methods = args.methods.split(",")
-    cols = ["teleports", "outside", "rigid_med", "rigid_p95", "edge_p95", "nan_left", "seconds"]
+    cols = ["teleports", "jumps", "outside", "rigid_med", "rigid_p95", "edge_p95", "nan_left", "seconds"]
     print(f"{'file':<44} {'method':<11}" + "".join(f"{c:>10}" for c in cols))
     for name in filter(None, args.files.split(",")):
         seq = torchfill.read(DATA / name)

@@ -181,3 +181,21 @@ def test_shape_mismatch_raises():
         metrics.rmse(filled[:-1], truth, mask)
     with pytest.raises(ValueError, match="shapes differ"):
         metrics.rmse(filled, truth, mask[:, :-1])
+
+
+def test_marker_jumps_counts_against_each_markers_own_steps():
+    """A slow marker's 30 mm jump inside a fill counts against its own 1 mm steps, though a fast
+    marker's 50 mm steps would hide it under the recording-wide limit."""
+    T = 200
+    t = np.arange(T, dtype=float)
+    X = np.zeros((T, 2, 3))
+    X[:, 0, 0] = t                                   # slow: 1 mm a frame
+    X[:, 1, 0] = 50.0 * t                            # fast: 50 mm a frame
+    missing = np.zeros((T, 2), dtype=bool)
+    missing[100:120, 0] = True
+    observed = ~missing
+    F = X.copy()
+    F[110:120, 0, 0] += 30.0                         # the fill jumps at frame 110 and stays
+    assert metrics.teleports(F, missing, metrics.step_limit(X, observed)) == 0
+    assert metrics.marker_jumps(F, missing, observed) == 2   # in at 110, back out at 120
+    assert metrics.marker_jumps(X, missing, observed) == 0

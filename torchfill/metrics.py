@@ -122,6 +122,18 @@ def teleports(filled, missing, limit: float) -> int:
     return int(np.sum(touched & (steps > limit)))
 
 
+def marker_jumps(filled, missing, observed, *, q: float = 99.9, factor: float = 1.5) -> int:
+    """Steps touching a filled sample longer than ``factor`` times the ``q``-th percentile of THAT
+    marker's own observed steps (:func:`step_limit` per marker): a shank marker's jump hidden
+    under the recording-wide limit that the feet's fast steps set. Markers with no observed step
+    count nothing."""
+    X = np.asarray(filled, dtype=np.float64)
+    missing, observed = np.asarray(missing, dtype=bool), np.asarray(observed, dtype=bool)
+    return sum(teleports(X[:, j:j + 1], missing[:, j:j + 1],
+                         step_limit(X[:, j:j + 1], observed[:, j:j + 1], q=q, factor=factor))
+               for j in np.flatnonzero(missing.any(axis=0)))
+
+
 def volume(points, observed, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis bounds of the observed samples, widened by ``margin`` times their range."""
     P = np.asarray(points, dtype=np.float64)[np.asarray(observed, dtype=bool)]

@@ -9,8 +9,8 @@ import torch
 import torchfill
 from torchfill import metrics
 from torchfill.segments import Segments
-from torchfill.solvers.rigid import (_upper_nanquantile, kabsch, rigid_fill, rigid_pairs,
-                                     segment_fill)
+from torchfill.solvers.rigid import (_carry_few, _upper_nanquantile, kabsch, rigid_fill,
+                                     rigid_pairs, segment_fill)
 
 
 def _rotation(rng) -> np.ndarray:
@@ -175,3 +175,64 @@ def test_a_ghost_in_a_mates_track_does_not_steer_the_fit():
     est, _, _ = segment_fill(X, None, {"a": [0, 1, 2, 3, 4]})
     err = np.linalg.norm(est[220:, 0] - truth[220:, 0], axis=1)
     assert err.max() < 0.1
+
+
+def test_rigid_fill_does_not_jump_where_a_mate_is_the_files_own_fill(recording):
+    """walking_hybrid_1_4's R_SHANK_3 gap (frames 287..375): R_SHANK_4 and R_SHANK_1 are the
+    file's own earlier fill over parts of it, so only one or two mates are observed there; the
+    fill carries on with them rather than switching models mid-gap (it jumped 32 mm at 315)."""
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_4.c3d"))
+    k = list(seq.labels).index("R_SHANK_3")
+    assert seq.mask[287:376, k].all() and not seq.mask[[286, 376], k].any()
+    with pytest.warns(UserWarning):
+        out = torchfill.fill(seq, method="rigid")
+    steps = metrics.norm_last(np.diff(out.points[286:377, k], axis=0))
+    observed = metrics.observed_steps(seq.points[:, k:k + 1], ~seq.mask[:, k:k + 1])
+    assert np.isfinite(steps).all()
+    assert steps.max() < 1.5 * observed.max()
+    assert np.array_equal(out.points[~seq.mask], seq.points[~seq.mask])
+
+
+def test_carry_with_fewer_than_three_mates():
+    """Two mates: exact for a turn about an axis across their line (the smallest rotation), and
+    the line's end points carried onto themselves; one mate: its shift; none: unmoved."""
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(3, 4, 3))
+    x = rng.normal(size=(3, 3))
+    u = P[0, 1] - P[0, 0]
+    axis = np.cross(u, rng.normal(size=3))
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + np.sin(0.7) * K + (1 - np.cos(0.7)) * K @ K
+    Q = P @ R.T + np.array([1.0, -2.0, 0.5])
+    S = np.zeros((3, 4), dtype=bool)
+    S[0, :2] = True
+    S[1, 2] = True
+    out = _carry_few(P, Q, S, x, np.ones(4))
+    np.testing.assert_allclose(out[0], R @ x[0] + np.array([1.0, -2.0, 0.5]), atol=1e-12)
+    np.testing.assert_allclose(out[1], x[1] + Q[1, 2] - P[1, 2], atol=1e-12)
+    np.testing.assert_array_equal(out[2], x[2])
+
+
+def test_a_hole_in_the_mates_inside_a_gap_is_carried_by_the_mates_left():
+    """Marker 0 missing over 100..159 and mate 1 over 120..139 (two mates left there): without
+    ``bridge`` those frames stay NaN, as before; with it they are carried from both sides by
+    markers 2 and 3, within a few mm of the truth and without a step beyond the marker's own;
+    the rigid method fills them so (the default's donors and candidate leave them out)."""
+    truth = _segment_motion()
+    X = truth.copy()
+    X[100:160, 0] = np.nan
+    X[120:140, 1] = np.nan
+    seg = {"a": [0, 1, 2, 3]}
+    est, _, _ = segment_fill(X, None, seg)
+    assert np.isnan(est[120:140, 0]).all() and np.isfinite(est[100:120, 0]).all()
+    est, std, _, bridged = segment_fill(X, None, seg, bridge=True)
+    assert np.array_equal(np.flatnonzero(bridged[:, 0]), np.arange(120, 140))
+    assert not bridged[:, 1:].any()
+    err = metrics.norm_last(est[120:140, 0] - truth[120:140, 0])
+    assert err.max() < 5.0 and (np.sqrt(3.0) * std[120:140, 0] >= err).all()
+    with pytest.warns(UserWarning, match="20 of 80 missing samples"):    # marker 1's own gap
+        filled = torchfill.fill(X, "rigid", segments=seg, constraints=False)
+    steps = metrics.norm_last(np.diff(filled[99:161, 0], axis=0))
+    assert steps.max() < 1.5 * metrics.observed_steps(X[:, :1], np.isfinite(X[:, :1, 0])).max()
+    np.testing.assert_allclose(filled[120:140, 0], est[120:140, 0], rtol=0, atol=1e-9)

@@ -20,7 +20,12 @@ a sample is measured on observed frames only: carrying observed ``j`` over the s
 frames between reference frames (a few lags, up to ``HOLDOUT_FRAMES`` frames each) gives the RMS
 error as a function of reach, interpolated at the sample's reach. Where ``j`` belongs to several
 segments (a knee marker: thigh and shank), each sample takes the segment with the smaller
-estimate. Fewer than three mates observed: the sample is left NaN for other models.
+estimate (a fit from three mates first). Fewer than three mates observed: inside a gap that the
+fill reaches elsewhere, the sample is carried from the nearest known samples of ``j`` on both
+sides by the mates it shares with them (two: the smallest rotation of their line; one: its shift;
+none: linear in time), so that the gap is one fill rather than a rigid fill with another model's
+pieces in it (the ``rigid`` method; ``auto``'s partial candidate and the rigid donors of
+:mod:`torchfill.constraints` leave such samples out); elsewhere it is left NaN for other models.
 
 **Rigid pairs** (:func:`rigid_pairs`) are the near-neighbour pairs whose distance is nearly
 constant (robust spread ``<= tol x`` the body's size); :mod:`torchfill.constraints` keeps their
@@ -367,7 +372,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     err = np.full(T, np.nan)
     refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
     if todo.size == 0 or refs.size == 0:
-        return est, err
+        return est, err, np.zeros(T, dtype=bool)
     e, good, reach = _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
@@ -394,7 +399,86 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
         r = np.full(todo.size, np.nan)
     est[todo[good]] = e[good]
     err[todo[good]] = r[good]
-    return est, err
+    bridged = _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
+        np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
+    return est, err, bridged
+
+
+def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
+    """Fill, in place, the frames of a gap of ``j`` that the rigid fill left out (fewer than three
+    mates observed there) between two frames where ``j`` is known (observed or estimated), one of
+    them estimated: ``j`` carried from each of the two by the mates observed in both
+    (:func:`_carry_few`), blended linearly in time as :func:`_estimate_at` does. Without it such a
+    frame falls to another model while its neighbours keep the rigid fill, and the fill jumps
+    there (walking_hybrid_1_4's R_SHANK_3: 32-55 mm where a mate's samples are the file's own
+    earlier fill). A trial end is left as it is: carried from its one side, walking_hybrid_1_4's
+    thigh and shank markers jumped 100-330 mm where they met the rest of the fill. The error adds
+    in quadrature the anchors' larger estimate, the hold-out ``curve`` at the reach to the nearer
+    anchor and the two sides' disagreement times the blend's weight on the farther side (the
+    turn about the mates' line that two mates do not see). Returns the bool (T,) of the frames
+    filled here."""
+    T = est.shape[0]
+    known = seen[:, j] | np.isfinite(est).all(axis=1)
+    frame = np.arange(T)
+    before = np.maximum.accumulate(np.where(known, frame, -1))
+    after = np.minimum.accumulate(np.where(known, frame, T)[::-1])[::-1]
+    t = np.flatnonzero(~known & (before >= 0) & (after < T))
+    b, a = before[t], after[t]
+    keep = ~seen[b, j] | ~seen[a, j]                       # not a gap the fill left out whole
+    t, b, a = t[keep], b[keep], a[keep]
+    bridged = np.zeros(T, dtype=bool)
+    if t.size == 0:
+        return bridged
+    use = seen[:, M] & (w > 0)
+    sides = []
+    for e in (b, a):
+        x = np.where(seen[e, j][:, None], X[e, j], est[e])
+        sides.append(_carry_few(X[e][:, M], X[t][:, M], use[e] & use[t], x, w))
+    s = ((t - b) / (a - b))[:, None]
+    est[t] = (1 - s) * sides[0] + s * sides[1]
+    anchor = np.maximum(np.where(seen[b, j], 0.0, err[b]), np.where(seen[a, j], 0.0, err[a]))
+    split = np.minimum(s, 1 - s)[:, 0] * norm_last(sides[1] - sides[0])     # the turn unseen
+    err[t] = np.sqrt(anchor ** 2 + curve(np.minimum(t - b, a - t)) ** 2 + split ** 2)
+    bridged[t] = True
+    return bridged
+
+
+def _carry_few(P, Q, S, x, w) -> np.ndarray:
+    """``x`` (n, 3) carried by the motion of the mates ``S`` (n, k) marks from ``P`` to ``Q``
+    (n, k, 3): the weighted Kabsch fit with three or more, with two the smallest rotation taking
+    the line through them in ``P`` to that in ``Q`` (the turn about that line is not seen) about
+    their midpoint, with one its shift, with none ``x`` as it is."""
+    n = S.sum(axis=1)
+    row = np.arange(n.size)
+    out = x.copy()
+    many = n >= 3
+    if many.any():
+        R, tr = kabsch(torch.from_numpy(np.nan_to_num(P[many])),
+                       torch.from_numpy(np.nan_to_num(Q[many])), torch.from_numpy(w * S[many]))
+        out[many] = np.einsum("nc,ndc->nd", x[many], R.numpy()) + tr.numpy()
+    first, second = np.argsort(~S, axis=1, kind="stable")[:, :2].T
+    one = n == 1
+    out[one] = (x + Q[row, first] - P[row, first])[one]
+    two = n == 2
+    if two.any():
+        f, g, r = first[two], second[two], row[two]
+        cp, cq = (P[r, f] + P[r, g]) / 2, (Q[r, f] + Q[r, g]) / 2
+        R = _turn(P[r, g] - P[r, f], Q[r, g] - Q[r, f])
+        out[two] = np.einsum("ncd,nd->nc", R, x[two] - cp) + cq
+    return out
+
+
+def _turn(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotations (n, 3, 3) taking the directions ``u`` to ``v`` (n, 3) (Rodrigues);
+    the identity where they are opposite (no smallest one)."""
+    u = u / norm_last(u)[:, None]
+    v = v / norm_last(v)[:, None]
+    k, c = np.cross(u, v), (u * v).sum(axis=1)
+    K = np.zeros((u.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K = K - K.transpose(0, 2, 1)
+    R = np.eye(3) + K + K @ K / np.maximum(1 + c, 1e-12)[:, None, None]
+    return np.where((c > -1 + 1e-9)[:, None, None], R, np.eye(3))
 
 
 def index_segments(segments, labels=None, X=None, observed=None) -> "dict[str, list[int]]":
@@ -411,8 +495,8 @@ def index_segments(segments, labels=None, X=None, observed=None) -> "dict[str, l
     return dict(seg.indices(labels))
 
 
-def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int = 3
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int = 3,
+                 bridge: bool = False) -> tuple[np.ndarray, ...]:
     """Rigid-body reconstruction of every missing sample that has ``min_mates`` segment-mates
     observed in its frame (see the module docstring).
 
@@ -428,6 +512,9 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
         ``labels``, else found from the data), or a dict name -> marker indices.
     labels : list of str, optional
         The marker labels (needed for segments given by name).
+    bridge : bool
+        Also carry a marker across the holes in its mates inside a gap (see :func:`_bridge`),
+        and return the bool ``(T, J)`` of those samples fourth.
 
     Returns
     -------
@@ -455,8 +542,11 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
                 _CACHE[key] = hit
                 while len(_CACHE) > CACHE_ENTRIES:
                     _CACHE.popitem(last=False)
-    est, std, seg_of = hit
-    return est * s + m, std * s, seg_of.copy()
+    est, std, seg_of, bridged = hit
+    if bridge:
+        return est * s + m, std * s, seg_of.copy(), bridged.copy()
+    return (np.where(bridged[..., None], np.nan, est) * s + m, np.where(bridged, np.nan, std) * s,
+            np.where(bridged, -1, seg_of))
 
 
 #: :func:`segment_fill` keeps its last results for this many recordings and masks (each at most
@@ -500,12 +590,13 @@ def _fingerprint(Xc: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int) -
 
 
 def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`segment_fill` on positions ``X`` (NaN where not ``seen``) and resolved segments."""
     T, J = X.shape[:2]
     est = np.full((T, J, 3), np.nan)
     std = np.full((T, J), np.nan)
     seg_of = np.full((T, J), -1, dtype=np.int64)
+    bridged = np.zeros((T, J), dtype=bool)
     members = {s: np.unique(np.asarray(m, dtype=np.int64)) for s, m in segs.items()}
     need = (~seen).any(axis=0) & seen.any(axis=0)
     pairs_j, pairs_k = [], []
@@ -515,7 +606,7 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             pairs_j.append(m[a])
             pairs_k.append(m[b])
     if not pairs_j:
-        return est, std, seg_of
+        return est, std, seg_of, bridged
     pj, pk = np.concatenate(pairs_j), np.concatenate(pairs_k)
     uniq = np.unique(np.stack([pj, pk], 1), axis=0)
     stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
@@ -535,18 +626,20 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
             if (w > 0).sum() < min_mates:
                 continue
-            e, r = _segment_estimate(X, seen, int(j), M, w, min_mates,
+            e, r, b = _segment_estimate(X, seen, int(j), M, w, min_mates,
                                      _shape(stats, M, floor))
             per_coord = r / np.sqrt(3.0)
             rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
             mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
                             np.inf)
             fin = np.isfinite(e).all(axis=1)
-            better = fin & (rank < mine)
+            was = bridged[:, j]              # a segment's fit from three mates before any bridge
+            better = fin & ((seg_of[:, j] < 0) | ((b == was) & (rank < mine)) | (was & ~b))
             est[better, j] = e[better]
             std[better, j] = per_coord[better]
             seg_of[better, j] = si
-    return est, std, seg_of
+            bridged[better, j] = b[better]
+    return est, std, seg_of, bridged
 
 
 def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -569,9 +662,13 @@ def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None,
     adult body: truly rigid mates only), and a marker stored twice filled from its twin.
 
     A gap takes the donors at all of its samples that have them or at none (a donor edge inside
-    a gap would pull the other method's fill there). Returns the fill (NaN where no donor;
-    observed samples unchanged) and the bool ``(T, J)``
-    mask of the samples filled here, as tensors.
+    a gap would pull the other method's fill there). The samples carried across a hole in the
+    mates (``bridge`` of :func:`segment_fill`) are no donors: judged by their own larger
+    estimate they would take the donors off the whole gap, and let through without it they
+    changed the default's fill on the real gaps (2219 -> 2229 steps beyond a marker's own
+    observed steps, one teleport more on numediart_03_rolling). Returns the fill (NaN where no
+    donor; observed samples unchanged) and the bool ``(T, J)`` mask of the samples filled here,
+    as tensors.
     """
     Xn = np.asarray(_numpy(X), dtype=np.float64)
     seen = np.isfinite(Xn).all(axis=2) if observed is None else _numpy(observed).astype(bool)
@@ -604,8 +701,9 @@ def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
 
 @register
 class Rigid(Solver):
-    """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates; PCHIP elsewhere, with
-    a warning that counts those samples (``history_[-1]["fallback"]``).
+    """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates, carried by the mates
+    left across a hole in them inside a gap; PCHIP elsewhere, with a warning that counts those
+    samples (``history_[-1]["fallback"]``).
 
     ``segments``: a dict segment name -> marker indices (``fill()`` passes the segments it
     resolved from the labels, the data or the user's file), or None: found from the data.
@@ -619,7 +717,8 @@ class Rigid(Solver):
         "segments": Param(None, dict, allow_none=True,
                           doc="segment name -> marker indices (None: found from the data)"),
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
-        "fallback": Param(True, bool, doc="PCHIP where fewer mates are seen (False: leave NaN "
+        "fallback": Param(True, bool, doc="where fewer mates are seen: carried across the hole "
+                                          "inside a gap, PCHIP elsewhere (False: leave NaN "
                                           "there, as auto's candidate does)"),
         "max_error": Param(None, float, low=0.0, allow_none=True,
                            doc="leave a sample to the other models (NaN, or PCHIP with fallback) "
@@ -635,14 +734,15 @@ class Rigid(Solver):
         seen = self.Omega_.all(dim=2)
         X = torch.where(seen[..., None], self.M_, torch.nan)
         segments = self.segments if self.segments is not None else "data"
-        est, std, self.segment_of_ = segment_fill(X.cpu().numpy(), seen.cpu().numpy(), segments,
-                                                  min_mates=self.min_partners)
-        ok = np.isfinite(est).all(axis=2)
+        est, std, self.segment_of_, bridged = segment_fill(
+            X.cpu().numpy(), seen.cpu().numpy(), segments, min_mates=self.min_partners,
+            bridge=True)
+        ok = np.isfinite(est).all(axis=2) & (self.fallback | ~bridged)
         if self.max_error is not None:                   # only where its own estimate is small
             size = body_size(X.cpu().numpy(), seen.cpu().numpy())
             ok &= np.sqrt(3.0) * np.nan_to_num(std, nan=np.inf) <= self.max_error * size
-            est = np.where(ok[..., None], est, np.nan)
-            std = np.where(ok, std, np.nan)
+        est = np.where(ok[..., None], est, np.nan)
+        std = np.where(ok, std, np.nan)
         done = torch.from_numpy(ok).to(seen.device)
         self.rigid_done_ = done
         self.std_ = torch.from_numpy(std).to(self.M_) * self.sigma_        # in the data's units
