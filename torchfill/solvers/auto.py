@@ -412,15 +412,13 @@ class Auto(Solver):
                     missing: Tensor) -> Tensor:
         """``mean`` (T, J, D) with each hole in a partial candidate's fill (missing samples it
         leaves NaN between samples it fills: a mate hidden for some frames of the gap) shifted by
-        the linear ramp between its offsets at its first and last sample from the segment fill
-        continued one frame at its speed on each side, so the other candidates' fill goes on
-        from the segment fill instead of stepping to it (the time constraint of Tits et al. with
-        the segment fill as the border). walking_hybrid_1_4's R_SHANK_3, R_SHANK_4 hidden at
-        316-332: 48.6 mm steps at both hole edges; offsets taken at the samples beside the hole
-        kept the others' own step at its edge (12 and 17 mm). A hole that reaches an observed
-        sample or a trial end is left as it is: ramped there too (to no offset, or the one side's
-        held), the real-gap suite lost 0.13 mm on its mean (walking_hybrid_1_2 on hdm05_bd 8.24
-        -> 10.39 mm)."""
+        the linear ramp between its offsets at the two sides from the samples beside it, so the
+        other candidates' fill meets the segment fill instead of stepping to it (the time
+        constraint of Tits et al. with the segment fill as the border). walking_hybrid_1_4's
+        R_SHANK_3, R_SHANK_4 hidden at 316-332: 48.6 mm steps at both hole edges. A hole that
+        reaches an observed sample or a trial end is left as it is: ramped there too (to no
+        offset, or the one side's held), the real-gap suite lost 0.13 mm on its mean
+        (walking_hybrid_1_2 on hdm05_bd 8.24 -> 10.39 mm)."""
         seg = torch.zeros_like(missing)
         for c in torch.nonzero(partial).flatten().tolist():
             seg |= torch.isfinite(fills[c]).all(dim=-1)
@@ -432,21 +430,18 @@ class Auto(Solver):
         prev, nxt = run_bounds(hole)                      # the samples beside each hole sample
         j = torch.arange(J, device=mean.device).expand(T, J)
         p, n = prev.clamp(min=0), nxt.clamp(max=T - 1)
+        others = torch.nan_to_num(fills)
+
+        def offset(side: Tensor, inner: Tensor) -> Tensor:
+            """Segment fill minus the hole's mix of the candidates, at the side sample."""
+            g = (w[:, inner, j][..., None] * others[:, side, j]).sum(dim=0)
+            return mean[side, j] - g
         inside = hole & (prev >= 0) & (nxt < T) & seg[p, j] & seg[n, j]
         if not bool(inside.any()):
             return mean
-        others = torch.nan_to_num(fills)
-
-        def offset(side: Tensor, beyond: Tensor, first: Tensor) -> Tensor:
-            """The segment fill continued from ``side`` one frame at its speed there (from
-            ``beyond``), minus the hole's mix of the candidates at its sample ``first``."""
-            g = (w[:, first, j][..., None] * others[:, first, j]).sum(dim=0)
-            return 2 * mean[side, j] - mean[beyond, j] - g
-        a, b = (p + 1).clamp(max=T - 1), (n - 1).clamp(min=0)   # the hole's first, last sample
-        D1 = offset(p, (p - 1).clamp(min=0), a)
-        D2 = offset(n, (n + 1).clamp(max=T - 1), b)
+        D1, D2 = offset(p, (p + 1).clamp(max=T - 1)), offset(n, (n - 1).clamp(min=0))
         t = torch.arange(T, device=mean.device)[:, None].expand(T, J)
-        s = ((t - a) / (b - a).clamp(min=1)).to(mean.dtype)[..., None]
+        s = ((t - prev) / (nxt - prev).clamp(min=1)).to(mean.dtype)[..., None]
         return torch.where(inside[..., None], mean + D1 + (D2 - D1) * s, mean)
 
     @staticmethod
