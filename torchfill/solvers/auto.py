@@ -415,7 +415,10 @@ class Auto(Solver):
         the linear ramp between its offsets at the two sides from the samples beside it, so the
         other candidates' fill meets the segment fill instead of stepping to it (the time
         constraint of Tits et al. with the segment fill as the border). walking_hybrid_1_4's
-        R_SHANK_3, R_SHANK_4 hidden at 316-332: 48.6 mm steps at both hole edges. A hole that
+        R_SHANK_3, R_SHANK_4 hidden at 316-332: 48.6 mm steps at both hole edges; 12 and 17 mm
+        are left, the other candidates' own steps between a segment frame and the hole (starting
+        the ramp on the segment fill continued at its speed removed those and cost the mask suite
+        0.11 mm, cmu8502_m20_L100 11.9 -> 14.2). A hole that
         reaches an observed sample or a trial end is left as it is: ramped there too (to no
         offset, or the one side's held), the real-gap suite lost 0.13 mm on its mean
         (walking_hybrid_1_2 on hdm05_bd 8.24 -> 10.39 mm)."""
