@@ -295,6 +295,9 @@ class Auto(Solver):
         "refit": Param(True, bool,
                        doc="refit the candidates that carry weight on all observed samples for the "
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
+        "draws": Param(2, int, low=1,
+                       doc="hold-out draws whose errors are pooled for the weights (each a fit "
+                           "of every candidate)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -365,14 +368,19 @@ class Auto(Solver):
         kinds = base + n_base * self._partial(names, fills)
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
+        pooled = [(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide])]
+        for _ in range(self.draws - 1):
+            pooled.append(self._draw(names, seen, V))
+        e_all = torch.cat([p[0] for p in pooled], dim=1)
+        k_all = torch.cat([p[1] for p in pooled])
+        g_all = torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pooled)])   # apart
         allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
         allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
-        if int(decide.sum()) == 0:                                  # nothing to choose on
+        if e_all.shape[1] == 0:                                     # nothing to choose on
             W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         else:
-            W = kind_weights(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide],
-                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio,
-                             allowed=allowed)
+            W = kind_weights(e_all, k_all, g_all, n_kinds, combine=self.combine,
+                             keep_ratio=self.keep_ratio, allowed=allowed)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
             fills, real_donor = self._refit(names, fills, w, ~seen)
@@ -446,6 +454,31 @@ class Auto(Solver):
         t = torch.arange(T, device=mean.device)[:, None].expand(T, J)
         s = ((t - prev) / (nxt - prev).clamp(min=1)).to(mean.dtype)[..., None]
         return torch.where(inside[..., None], mean + D1 + (D2 - D1) * s, mean)
+
+    def _draw(self, names: list[str], seen: Tensor, V0: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Another hold-out draw, scored like the first: the candidates' squared errors (C, N),
+        kinds (N,) and gap ids (N,) on its held-out samples that they fill themselves (none when
+        the draw repeats ``V0``); a candidate that fails on it has NaN errors."""
+        V = self._holdout(seen)
+        C = len(names)
+        if bool((V == V0).all()):
+            empty = torch.empty(0, dtype=torch.long, device=V.device)
+            return torch.empty(C, 0, dtype=self.M_.dtype, device=V.device), empty, empty
+        fit_missing = ~seen | V
+        Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
+        fills = torch.full((C, *Xt.shape), float("nan"), dtype=self.M_.dtype, device=V.device)
+        for c, out in enumerate(self._fit_all(names, fit_missing, "draw")):
+            if not isinstance(out, Exception):
+                fills[c] = out
+        ok = [c for c in range(C) if bool(torch.isfinite(fills[c]).any())]
+        fills[ok], donor = self._constrain(fills[ok], fit_missing)
+        d, L, edge = run_geometry(fit_missing)
+        n_base = 4 * (len(LENGTH_EDGES) + 1)
+        kinds = gap_kind(L, edge, gap_motion(fit_missing, Xt) > FAST)
+        kinds = kinds + n_base * self._partial(names, fills)
+        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
+        decide = ~donor[V]
+        return err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]
 
     @staticmethod
     def _partial(names: list[str], fills: Tensor) -> Tensor:
