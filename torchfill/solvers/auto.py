@@ -11,7 +11,7 @@ How (observed data only, never the ground truth of the gaps):
    A second such hold-out (``draws=2``: another shift) is fitted and scored the same way and the
    errors of both are pooled: which shift one draw takes moved single cases by 20-30 % and more
    (the 19-case mask suite's mean RMSE at seed 0 / 1: one draw 11.57 / 13.60 mm, two 10.95 /
-   11.27; cases above 1.25x their best single method 7 / 7 against 3 / 5).
+   11.55; cases above 1.25x their best single method 7 / 7 against 3 / 4).
 2. Every candidate fits once on the data with ``V`` hidden and is scored on ``V``. A candidate
    that fails on the recording (e.g. ``pca_train`` without enough complete frames, ``rigid`` or
    ``pma`` on 2-D keypoints) is dropped. Given a ``post`` step as fit data (``fill()`` passes its
@@ -303,7 +303,7 @@ class Auto(Solver):
                        doc="hold-out draws (shifts of the gap pattern) whose errors are pooled "
                            "for the weights, each a fit of every candidate (1: about a third "
                            "less time; the mask suite's mean 10.95 -> 11.57 mm at seed 0, "
-                           "11.27 -> 13.60 at seed 1)"),
+                           "11.55 -> 13.60 at seed 1)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
