@@ -22,7 +22,10 @@ How (observed data only, never the ground truth of the gaps):
    held-out mean squared errors give the weights of a weighted average (``combine="average"``:
    inverse-MSE weights over the candidates within ``keep_ratio`` of the best, the model averaging
    of Tits et al. 2018 with weights from held-out errors; ``"select"``: the best alone). A kind
-   seen in few held-out gaps leans on its parent (see :func:`kind_weights`).
+   seen in few held-out gaps leans on its parent (see :func:`kind_weights`). With training
+   recordings, a trial-end kind's mean squared errors are the geometric mean of ``V``'s and those
+   of the cross-trial hold-out (the recording's gap pattern laid whole onto a training recording,
+   :meth:`Auto._cross_holdout`): a candidate must fill both well.
 4. The candidates that carry weight on a real gap are refitted on every observed sample, and the
    real gaps get the weighted average of the refits, each reusing what its hold-out fit chose
    (:meth:`Solver.carry`: Tucker's eps schedule) (``refit=False``: of the hold-out fits, one
@@ -86,6 +89,11 @@ PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
 #: ``TWINS`` learn from their frames too (:mod:`torchfill.solvers.session`), under the name
 #: ``NAME+session``; the ones in ``ALONE`` also stay in as they were, so that the hold-out can
 #: still choose the recording's own evidence where another trial misleads (a different motion).
+#: A twin's fill of a gap touching one trial end is shifted as a whole onto the trajectory
+#: continued from the gap's observed edge (:func:`end_shift`): another trial places a marker
+#: where that trial had it, an offset the post-step's edge fade (over 10 frames) leaves in the
+#: rest of the gap. With training, a trial-end gap kind's weights also weigh the cross-trial
+#: hold-out (:meth:`Auto._cross_holdout`, ``cross=True``).
 #: ``pma`` and ``glr`` run only as their twins (``pma+session`` with ``pma`` beside it cost a third
 #: of the session's extra time on scripts/bench_session.py), ``lgrnn`` only on the recording (its
 #: twin cost as much and carried weight on 2 of 10 trials there).
@@ -109,7 +117,8 @@ FAST = 3.0
 #: A kind's held-out errors count as much as their number of held-out gaps against this many
 #: gaps of its parent (all gaps at a trial end / inside, then all gaps): see :func:`kind_weights`.
 PRIOR_GAPS = 10.0
-
+#: Window starts tried for the cross-trial hold-out (:func:`motion_match`), every this many frames.
+MATCH_STRIDE = 10
 
 def interior_share(Omega: Tensor) -> float:
     """Share of the missing samples (a sample: any coordinate of a marker in a frame) that lie in
@@ -182,12 +191,69 @@ def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
     return torch.where(missing, total / (nxt - prev - 1).clamp(min=1), 0.0)
 
 
+def frame_motion(Y: Tensor, both: Tensor) -> Tensor:
+    """(T-1,) mean squared one-frame step of ``Y`` (T, J, D) over the markers ``both`` (T-1, J)
+    seen in both frames; NaN where none is."""
+    step = torch.nan_to_num(torch.diff(Y, dim=0)).pow(2).mean(dim=2)
+    n = both.sum(dim=1)
+    m = torch.where(both, step, 0.0).sum(dim=1) / n.clamp(min=1)
+    return torch.where(n > 0, m, float("nan"))
+
+
+def motion_match(Y: Tensor, seen: Tensor, Z: Tensor, stride: int = MATCH_STRIDE
+                 ) -> tuple[int, float]:
+    """The start of the ``T``-frame window of ``Z`` (T_k, J, D; NaN: not observed) whose frame
+    motion (on the markers ``Y`` (T, J, D) shows in both frames, ``seen`` (T, J)) is nearest to
+    ``Y``'s on a log scale, starts every ``stride`` frames; and that mean squared log distance."""
+    T = Y.shape[0]
+    both = seen[1:] & seen[:-1]
+    zs = torch.isfinite(Z).all(dim=-1)
+    zboth = zs[1:] & zs[:-1]
+    best = (0, float("inf"))
+    for s in range(0, Z.shape[0] - T + 1, stride):
+        w = both & zboth[s:s + T - 1]
+        my, mz = frame_motion(Y, w), frame_motion(Z[s:s + T], w)
+        ok = torch.isfinite(my) & torch.isfinite(mz)
+        if not bool(ok.any()):
+            continue
+        eps = 1e-3 * float(my[ok].median()) + 1e-12
+        cost = float((torch.log(my[ok] + eps) - torch.log(mz[ok] + eps)).pow(2).mean())
+        if cost < best[1]:
+            best = (s, cost)
+    return best
+
+
+def end_shift(F: Tensor, missing: Tensor) -> Tensor:
+    """``F`` (T, J, D) with each gap of ``missing`` (T, J) that touches one trial end shifted as a
+    whole onto the observed trajectory continued one frame at its speed from the gap's other edge
+    (a constant offset: a model trained on another trial places a marker off by where that trial
+    had it)."""
+    T = F.shape[0]
+    F = F.clone()
+    for j, a, b in ops.runs(missing):
+        if (a == 0) == (b == T):
+            continue
+        e, e2, t = (a - 1, a - 2, a) if a > 0 else (b, b + 1, b - 1)
+        v = F[e, j] - F[e2, j] if 0 <= e2 < T and not bool(missing[e2, j]) else 0.0
+        F[a:b, j] += F[e, j] + v - F[t, j]
+    return F
+
+
 def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, combine: str,
                  keep_ratio: float, prior: float = PRIOR_GAPS,
                  allowed: Tensor | None = None) -> Tensor:
     """Candidate weights per kind, (n_kinds, C), from held-out squared errors ``err2`` (C, N) of
     samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,); a candidate
-    takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere).
+    takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere). The mean squared
+    errors per kind are :func:`kind_mse`'s."""
+    return mse_weights(kind_mse(err2, kinds, gap_ids, n_kinds, prior), combine=combine,
+                       keep_ratio=keep_ratio, allowed=allowed)
+
+
+def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
+             prior: float = PRIOR_GAPS) -> Tensor:
+    """Per kind, each candidate's held-out mean squared error (n_kinds, C) (see
+    :func:`kind_weights` for the arguments).
 
     A kind's mean squared errors are shrunk towards those of all gaps of its trial-end status,
     and those towards all gaps, each with the weight of ``prior`` gaps against the kind's own
@@ -201,6 +267,16 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
                                                                 # fills none of them: its parent
         return (n * own + prior * parent) / (n + prior)
 
+    every = err2.nanmean(dim=1)
+    by_edge = [mse(kinds % 2 == e, every) for e in (0, 1)]
+    return torch.stack([mse(kinds == k, by_edge[k % 2]) for k in range(n_kinds)])
+
+
+def mse_weights(m: Tensor, *, combine: str, keep_ratio: float,
+                allowed: Tensor | None = None) -> Tensor:
+    """Weights (n_kinds, C) from mean squared errors ``m`` (n_kinds, C): per kind, inverse-MSE
+    weights over the allowed candidates within ``keep_ratio`` of the best (``combine="select"``:
+    the best alone)."""
     def weights(m: Tensor, ok: Tensor) -> Tensor:
         m = torch.where(torch.isnan(m) | ~ok, torch.inf, m)
         if combine == "select":
@@ -210,14 +286,9 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
         w = torch.where(m <= keep_ratio * m.min(), 1.0 / m.clamp(min=1e-300), 0.0)
         return w / w.sum()
 
-    every = err2.nanmean(dim=1)
-    by_edge = [mse(kinds % 2 == e, every) for e in (0, 1)]
-    W = torch.empty(n_kinds, err2.shape[0], dtype=err2.dtype, device=err2.device)
     if allowed is None:
-        allowed = torch.ones(W.shape, dtype=torch.bool, device=W.device)
-    for k in range(n_kinds):
-        W[k] = weights(mse(kinds == k, by_edge[k % 2]), allowed[k])
-    return W
+        allowed = torch.ones(m.shape, dtype=torch.bool, device=m.device)
+    return torch.stack([weights(m[k], allowed[k]) for k in range(m.shape[0])])
 
 
 def gap_index(mask: Tensor) -> Tensor:
@@ -295,6 +366,10 @@ class Auto(Solver):
         "refit": Param(True, bool,
                        doc="refit the candidates that carry weight on all observed samples for the "
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
+        "cross": Param(True, bool,
+                       doc="with training data: trial-end gap kinds scored by the geometric mean "
+                           "of the recording's hold-out and the cross-trial hold-out's mean "
+                           "squared errors (see _cross_holdout)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -344,6 +419,7 @@ class Auto(Solver):
         self.weights_: dict[str, dict[str, float]] = {}
         self.dropped_: dict[str, str] = {}
         self.carried_: dict[str, dict] = {}
+        self.cross_scores_: dict[str, float] = {}
 
     def _estimate(self) -> Tensor:
         return self.X_
@@ -367,12 +443,18 @@ class Auto(Solver):
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
         allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
         allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
-        if int(decide.sum()) == 0:                                  # nothing to choose on
+        e2, k2, g2 = err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]
+        cross = self._cross_holdout(names, seen, n_base) if self.cross else None
+        if k2.numel() == 0:                                         # nothing to choose on
             W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
+        elif cross is not None:
+            Mo, Mc = kind_mse(e2, k2, g2, n_kinds), kind_mse(*cross, n_kinds)
+            end = (torch.arange(n_kinds, device=Mo.device) % 2 == 1)[:, None]
+            M = torch.where(end & ~torch.isnan(Mc), (Mo * Mc).sqrt(), Mo)
+            W = mse_weights(M, combine=self.combine, keep_ratio=self.keep_ratio, allowed=allowed)
         else:
-            W = kind_weights(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide],
-                             n_kinds, combine=self.combine, keep_ratio=self.keep_ratio,
-                             allowed=allowed)
+            W = kind_weights(e2, k2, g2, n_kinds, combine=self.combine,
+                             keep_ratio=self.keep_ratio, allowed=allowed)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
             fills, real_donor = self._refit(names, fills, w, ~seen)
@@ -477,10 +559,71 @@ class Auto(Solver):
             V = torch.where((n <= 0.5 * n_seen) & (n_seen - n >= 2), W, V)
         return V
 
-    def _fit_one(self, name: str, fit_missing: Tensor) -> Tensor:
-        """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3)."""
+    def _cross_holdout(self, names: list[str], seen: Tensor, n_base: int
+                       ) -> tuple[Tensor, Tensor, Tensor] | None:
+        """The cross-trial hold-out: the recording's own gaps, whole (all markers together, where
+        they are), laid onto the ``T``-frame window of a training recording whose frame motion is
+        nearest to the recording's (:func:`motion_match`; training recordings shorter than the
+        recording are not used). Each candidate fills it (a ``+session`` twin with the
+        recording's observed samples and the other training recordings as its training, the
+        others on the window alone), through the post-step, and is scored on the training
+        recording's observed samples under the laid gaps: which candidate fills exactly this gap
+        pattern best on this subject, where the recording's own hold-out hides fewer markers at
+        once and shorter stretches. Reads the recording's observed samples only.
+
+        Returns the squared errors (C, N) (NaN: the candidate failed there), the samples' kinds
+        and gap indices, without the samples rigid donors fill; None without training data, or
+        where a marker would be seen nowhere in the window."""
+        training = self.fit_data_.get("training")
+        if not training:
+            return None
+        T, J = seen.shape
+        Y = self.M_.reshape(T, J, -1)
+        best = None
+        for k, t in enumerate(training):
+            if t.shape[0] < T:
+                continue
+            Z = (t.reshape(t.shape[0], J, -1) - self.mu_) / self.sigma_
+            start, cost = motion_match(Y, seen, Z)
+            if best is None or cost < best[0]:
+                best = (cost, k, start, Z[start:start + T])
+        if best is None:
+            return None
+        _, k, start, Z = best
+        self.cross_window_ = (k, start)
+        gaps = ~seen
+        obs = torch.isfinite(Z).all(dim=-1)
+        missing = gaps | ~obs
+        if not bool((gaps & obs).any()) or not bool((~missing).any(dim=0).all()):
+            return None
+        Mx = torch.nan_to_num(Z).reshape(self.M_.shape)
+        own = torch.where(seen.reshape(T, J, 1), self.M_.reshape(T, J, -1), float("nan"))
+        train = [own.reshape(self.M_.shape)] + [(t - self.mu_) / self.sigma_
+                                                 for i, t in enumerate(training) if i != k]
+        outs = list(self._fit_all(names, missing, "cross", (Mx, train)))
+        Xt = Mx.reshape(T, J, -1)
+        ok = [c for c, out in enumerate(outs) if not isinstance(out, Exception)]
+        if not ok:
+            return None
+        fills = torch.stack([outs[c] if c in ok else Xt for c in range(len(names))])
+        fills, donor = self._constrain(fills, missing)
+        V = gaps & obs
+        d, L, edge = run_geometry(missing)
+        kinds = gap_kind(L, edge, gap_motion(missing, Xt) > FAST) + n_base * self._partial(
+            [n if c in ok else "" for c, n in enumerate(names)], fills)
+        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
+        err2[[c for c in range(len(names)) if c not in ok]] = float("nan")
+        decide = ~donor[V]
+        self.cross_scores_ = {nm: float(e.nanmean().sqrt()) for nm, e in zip(names, err2)}
+        return err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]
+
+    def _fit_one(self, name: str, fit_missing: Tensor, case: tuple | None = None) -> Tensor:
+        """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3).
+        ``case``: another recording to fit instead, ``(M, training)`` in the fit's units (the
+        cross-trial hold-out, see :meth:`_cross_holdout`); nothing is carried from its fit."""
         T, J = fit_missing.shape
-        X = torch.where(fit_missing[..., None], float("nan"), self.M_.reshape(T, J, -1))
+        M = self.M_ if case is None else case[0]
+        X = torch.where(fit_missing[..., None], float("nan"), M.reshape(T, J, -1))
         method = name.removesuffix(SESSION)
         params = {"seed": self.seed, **PARTIAL.get(method, {}),
                   **(self.candidate_params or {}).get(method, {}),
@@ -491,10 +634,15 @@ class Auto(Solver):
                  or not solver.spatial or name in (self.candidates or ())]
         data = {k: [(t - self.mu_) / self.sigma_ for t in v] for k, v in self.fit_data_.items()
                 if k in takes}                            # training data in the fit's units
+        if case is not None and "training" in data:
+            data["training"] = case[1]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)
-        self.carried_[name] = solver.carry()    # the refit reuses what the hold-out fit chose
+        if case is None:
+            self.carried_[name] = solver.carry()    # the refit reuses what the hold-out fit chose
+        if name.endswith(SESSION):
+            out = end_shift(out, fit_missing)
         done = torch.isfinite(out).all(dim=-1)
         if name in PARTIAL and bool(done[fit_missing].any()):
             return out.to(self.M_.dtype)                    # NaN where it does not fill
@@ -502,14 +650,16 @@ class Auto(Solver):
             raise ValueError("non-finite fill")
         return out.to(self.M_.dtype)
 
-    def _attempt(self, name: str, fit_missing: Tensor) -> Tensor | Exception:
+    def _attempt(self, name: str, fit_missing: Tensor, case: tuple | None = None
+                 ) -> Tensor | Exception:
         """:meth:`_fit_one`, or the error that drops the candidate."""
         try:
-            return self._fit_one(name, fit_missing)
+            return self._fit_one(name, fit_missing, case)
         except FAILURES as err:
             return err
 
-    def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit") -> Iterator:
+    def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit",
+                 case: tuple | None = None) -> Iterator:
         """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``).
         Each finished fit is reported (:meth:`Solver.report`): ``{stage}=k``, ``{stage}s=n``
         (``fit``/``fits`` on the hold-out, ``refit``/``refits``; the step's own record counts the
@@ -518,7 +668,7 @@ class Auto(Solver):
         lock, done = threading.Lock(), [0]
 
         def attempt(name: str):
-            out = self._attempt(name, fit_missing)
+            out = self._attempt(name, fit_missing, case)
             with lock:
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
