@@ -191,36 +191,35 @@ def gap_motion(missing: Tensor, Y: Tensor) -> Tensor:
     return torch.where(missing, total / (nxt - prev - 1).clamp(min=1), 0.0)
 
 
-def frame_motion(Y: Tensor, both: Tensor) -> Tensor:
-    """(T-1,) mean squared one-frame step of ``Y`` (T, J, D) over the markers ``both`` (T-1, J)
-    seen in both frames; NaN where none is."""
-    step = torch.nan_to_num(torch.diff(Y, dim=0)).pow(2).mean(dim=2)
-    n = both.sum(dim=1)
-    m = torch.where(both, step, 0.0).sum(dim=1) / n.clamp(min=1)
-    return torch.where(n > 0, m, float("nan"))
-
-
 def motion_match(Y: Tensor, seen: Tensor, Z: Tensor, stride: int = MATCH_STRIDE
                  ) -> tuple[int, float]:
     """The start of the ``T``-frame window of ``Z`` (T_k, J, D; NaN: not observed) whose frame
-    motion (on the markers ``Y`` (T, J, D) shows in both frames, ``seen`` (T, J)) is nearest to
-    ``Y``'s on a log scale, starts every ``stride`` frames; and that mean squared log distance."""
+    motion is nearest to ``Y``'s (T, J, D) on a log scale, starts every ``stride`` frames; and
+    that mean squared log distance. A frame's motion: the mean squared one-frame step of the
+    markers seen in both frames in ``Y`` (``seen`` (T, J)) and in the window; windows a block at
+    a time (memory bounded)."""
     T = Y.shape[0]
     both = seen[1:] & seen[:-1]
     zs = torch.isfinite(Z).all(dim=-1)
     zboth = zs[1:] & zs[:-1]
-    best = (0, float("inf"))
-    for s in range(0, Z.shape[0] - T + 1, stride):
-        w = both & zboth[s:s + T - 1]
-        my, mz = frame_motion(Y, w), frame_motion(Z[s:s + T], w)
-        ok = torch.isfinite(my) & torch.isfinite(mz)
-        if not bool(ok.any()):
-            continue
-        eps = 1e-3 * float(my[ok].median()) + 1e-12
-        cost = float((torch.log(my[ok] + eps) - torch.log(mz[ok] + eps)).pow(2).mean())
-        if cost < best[1]:
-            best = (s, cost)
-    return best
+    sy = torch.nan_to_num(torch.diff(Y, dim=0)).pow(2).mean(dim=2)
+    sz = torch.nan_to_num(torch.diff(Z, dim=0)).pow(2).mean(dim=2)
+    starts = torch.arange(0, Z.shape[0] - T + 1, stride, device=Y.device)
+    block = max(1, 2 ** 22 // max(T * Y.shape[1], 1))
+    costs = []
+    for s in starts.split(block):
+        rows = s[:, None] + torch.arange(T - 1, device=Y.device)          # (n, T-1)
+        w = both & zboth[rows]
+        n = w.sum(dim=2).clamp(min=1)
+        my = torch.where(w, sy, 0.0).sum(dim=2) / n
+        mz = torch.where(w, sz[rows], 0.0).sum(dim=2) / n
+        ok = w.any(dim=2)
+        eps = 1e-3 * torch.where(ok, my, torch.nan).nanmedian(dim=1, keepdim=True).values + 1e-12
+        d = (torch.log(my + eps) - torch.log(mz + eps)).pow(2)
+        costs.append(torch.where(ok, d, torch.nan).nanmean(dim=1))
+    cost = torch.nan_to_num(torch.cat(costs), nan=torch.inf) if costs else Y.new_full((1,), torch.inf)
+    k = int(cost.argmin())
+    return (int(starts[k]), float(cost[k])) if costs else (0, float("inf"))
 
 
 def end_shift(F: Tensor, missing: Tensor) -> Tensor:
