@@ -344,6 +344,12 @@ class Auto(Solver):
         Held-out RMSE (normalized units, all held-out entries) per candidate that ran.
     weights_ : dict
         Per gap kind, the candidate weights used.
+    cross_scores_ : dict
+        With training data: RMSE (normalized units) per candidate on the cross-trial hold-out
+        (see :meth:`_cross_holdout`); empty where it did not run.
+    cross_window_ : tuple of int or None
+        The training recording (its index) and the start frame of the window the cross-trial
+        hold-out was laid onto.
     anchored_ : Tensor (T, J) of bool
         Missing samples whose fill is at least half a partial candidate's (``rigid``: rebuilt
         from segment-mates); ``fill()``'s soft distances hold them still.
@@ -419,6 +425,7 @@ class Auto(Solver):
         self.dropped_: dict[str, str] = {}
         self.carried_: dict[str, dict] = {}
         self.cross_scores_: dict[str, float] = {}
+        self.cross_window_: tuple[int, int] | None = None
 
     def _estimate(self) -> Tensor:
         return self.X_
