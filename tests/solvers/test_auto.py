@@ -112,6 +112,25 @@ def test_progress_reports_every_candidate_fit_and_refit():
     assert len(solver.history_) == 1 and solver.callback_ is None         # reports not kept
 
 
+def test_a_second_draw_holds_out_other_observed_samples():
+    """The weights pool two hold-out draws (which shift one draw takes moves single cases by
+    20-30 %): each hides the real gaps and observed samples of its own, not the first's."""
+    X = _gappy()
+    solver = get_solver("auto", candidates=["pchip", "spline", "svt"])
+    hidden, fit_all = [], solver._fit_all
+
+    def spy(names, fit_missing, stage="fit"):
+        hidden.append((stage, fit_missing.clone()))
+        return fit_all(names, fit_missing, stage)
+    solver._fit_all = spy
+    solver.fit(torch.from_numpy(X))
+    missing = torch.from_numpy(np.isnan(X).any(axis=2))
+    held = [m & ~missing for stage, m in hidden if stage in ("fit", "draw")]
+    assert [stage for stage, _ in hidden] == ["fit", "draw", "refit"]
+    assert all(bool(m[missing].all()) for _, m in hidden)
+    assert all(bool(h.any()) for h in held) and not torch.equal(*held)
+
+
 def test_unknown_candidate_is_an_error():
     with pytest.raises(ValueError, match="candidates expected"):
         get_solver("auto", candidates=["pchip", "not_a_method"])
