@@ -466,7 +466,7 @@ class Auto(Solver):
         g_all = torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pooled)])   # apart
         allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
         allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
-        cross = self._cross_holdout(names, seen, n_base) if self.cross else None
+        cross = self._cross_holdout(names, seen) if self.cross else None
         if e_all.shape[1] == 0:                                     # nothing to choose on
             W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         elif cross is not None:
@@ -552,29 +552,38 @@ class Auto(Solver):
         return torch.where(inside[..., None], mean + D1 + (D2 - D1) * s, mean)
 
     def _draw(self, names: list[str], seen: Tensor, V0: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Another hold-out draw, scored like the first: the candidates' squared errors (C, N),
-        kinds (N,) and gap ids (N,) on its held-out samples that they fill themselves (none when
-        the draw repeats ``V0``); a candidate that fails on it has NaN errors."""
+        """Another hold-out draw, scored like the first (:meth:`_scored`; none when the draw
+        repeats ``V0``)."""
         V = self._holdout(seen)
-        C = len(names)
         if bool((V == V0).all()):
             empty = torch.empty(0, dtype=torch.long, device=V.device)
-            return torch.empty(C, 0, dtype=self.M_.dtype, device=V.device), empty, empty
+            return torch.empty(len(names), 0, dtype=self.M_.dtype, device=V.device), empty, empty
         fit_missing = ~seen | V
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
+        outs = self._fit_all(names, fit_missing, "draw")
+        return self._scored(names, outs, fit_missing, Xt, V)[0]
+
+    def _scored(self, names: list[str], outs, missing: Tensor, Xt: Tensor, V: Tensor
+                ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor]:
+        """The candidates' fits ``outs`` (in ``names``' order; an exception: the candidate
+        failed) of ``Xt`` (T, J, D) with ``missing`` hidden, through the post-step and scored on
+        the held-out samples ``V``: their squared errors (C, N), kinds (N,) and gap ids (N,) on
+        the samples they fill themselves (not rigid donors); and the squared errors on all of
+        ``V`` (C, N_V). A failed candidate's errors are NaN."""
+        C = len(names)
         fills = torch.full((C, *Xt.shape), float("nan"), dtype=self.M_.dtype, device=V.device)
-        for c, out in enumerate(self._fit_all(names, fit_missing, "draw")):
+        for c, out in enumerate(outs):
             if not isinstance(out, Exception):
                 fills[c] = out
         ok = [c for c in range(C) if bool(torch.isfinite(fills[c]).any())]
-        fills[ok], donor = self._constrain(fills[ok], fit_missing)
-        d, L, edge = run_geometry(fit_missing)
+        fills[ok], donor = self._constrain(fills[ok], missing)
+        _, L, edge = run_geometry(missing)
         n_base = 4 * (len(LENGTH_EDGES) + 1)
-        kinds = gap_kind(L, edge, gap_motion(fit_missing, Xt) > FAST)
+        kinds = gap_kind(L, edge, gap_motion(missing, Xt) > FAST)
         kinds = kinds + n_base * self._partial(names, fills)
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
         decide = ~donor[V]
-        return err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]
+        return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
 
     @staticmethod
     def _partial(names: list[str], fills: Tensor) -> Tensor:
@@ -606,7 +615,7 @@ class Auto(Solver):
             V = torch.where((n <= 0.5 * n_seen) & (n_seen - n >= 2), W, V)
         return V
 
-    def _cross_holdout(self, names: list[str], seen: Tensor, n_base: int
+    def _cross_holdout(self, names: list[str], seen: Tensor
                        ) -> tuple[Tensor, Tensor, Tensor] | None:
         """The cross-trial hold-out: the recording's own gaps, whole (all markers together, where
         they are), laid onto the ``T``-frame window of a training recording whose frame motion is
@@ -648,21 +657,11 @@ class Auto(Solver):
         train = [own.reshape(self.M_.shape)] + [(t - self.mu_) / self.sigma_
                                                  for i, t in enumerate(training) if i != k]
         outs = list(self._fit_all(names, missing, "cross", (Mx, train)))
-        Xt = Mx.reshape(T, J, -1)
-        ok = [c for c, out in enumerate(outs) if not isinstance(out, Exception)]
-        if not ok:
+        if all(isinstance(out, Exception) for out in outs):
             return None
-        fills = torch.stack([outs[c] if c in ok else Xt for c in range(len(names))])
-        fills, donor = self._constrain(fills, missing)
-        V = gaps & obs
-        d, L, edge = run_geometry(missing)
-        kinds = gap_kind(L, edge, gap_motion(missing, Xt) > FAST) + n_base * self._partial(
-            [n if c in ok else "" for c, n in enumerate(names)], fills)
-        err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
-        err2[[c for c in range(len(names)) if c not in ok]] = float("nan")
-        decide = ~donor[V]
+        scored, err2 = self._scored(names, outs, missing, Mx.reshape(T, J, -1), gaps & obs)
         self.cross_scores_ = {nm: float(e.nanmean().sqrt()) for nm, e in zip(names, err2)}
-        return err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]
+        return scored
 
     def _fit_one(self, name: str, fit_missing: Tensor, case: tuple | None = None) -> Tensor:
         """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3).
