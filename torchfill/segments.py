@@ -29,7 +29,7 @@ one format:
   --segments`` prints it for the segments in use), so a user can check, edit and pass it back
   (``fill(..., segments=path)``, ``torchfill fill --segments FILE``).
 
-This module imports no other torchfill module.
+Of torchfill it imports only :mod:`torchfill.metrics` (numpy only, no torch).
 """
 from __future__ import annotations
 
