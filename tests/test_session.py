@@ -60,8 +60,8 @@ def test_session_fills_trial_end_better(cmu85, method):
 
 
 def test_default_with_session(cmu85, monkeypatch):
-    """Measured: alone 11.76 mm (23.20 with one hold-out draw), session 8.90 (8.91 with the
-    twins in both draws, 8.88 with one draw). The ``+session`` twins fit the first hold-out draw,
+    """Measured: alone 11.76 mm (23.20 with one hold-out draw), session 9.44 (8.90 without the
+    cross-trial hold-out, ``cross=False``). The ``+session`` twins fit the first hold-out draw,
     not the second (the session's time)."""
     from torchfill.solvers.auto import SESSION, Auto
 
@@ -77,7 +77,7 @@ def test_default_with_session(cmu85, monkeypatch):
         out, std = torchfill.fill(X, extrapolate=None, training=train, return_std=True)
         alone = torchfill.fill(X, extrapolate=None)
     e, e_alone = (rmse_missing(f.points, truth.points, mask) for f in (out, alone))
-    assert e < 0.8 * e_alone and e < BOUND["default"], (e_alone, e)
+    assert e < 0.85 * e_alone and e < BOUND["default"], (e_alone, e)
     assert np.isfinite(std[mask]).all() and not np.isfinite(std[~mask]).any()
     seen = np.isfinite(X.points)
     assert np.array_equal(out.points[seen], X.points[seen])
@@ -185,7 +185,7 @@ def group_end(recording):
 
 def test_session_fills_a_trial_end_group_gap(group_end):
     """The twins' trial-end fills shifted onto the observed edge: measured alone 18.98 -> session
-    10.18 mm (13.23 with the cross-trial hold-out, ``cross=True``)."""
+    13.23 mm (10.18 without the cross-trial hold-out, ``cross=False``)."""
     X, truth, mask, train = group_end
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -27,9 +27,10 @@ How (observed data only, never the ground truth of the gaps):
    inverse-MSE weights over the candidates within ``keep_ratio`` of the best, the model averaging
    of Tits et al. 2018 with weights from held-out errors; ``"select"``: the best alone). A kind
    seen in few held-out gaps leans on its parent (see :func:`kind_weights`). With training
-   recordings and ``cross=True``, a trial-end kind's mean squared errors are the geometric mean of ``V``'s and those
-   of the cross-trial hold-out (the recording's gap pattern laid whole onto a training recording,
-   :meth:`Auto._cross_holdout`): a candidate must fill both well.
+   recordings (``cross=True``, the default), a trial-end kind's mean squared errors are the
+   geometric mean of ``V``'s and those of the cross-trial hold-out (the recording's gap pattern
+   laid whole onto a training recording, :meth:`Auto._cross_holdout`): a candidate must fill both
+   well.
 4. The candidates that carry weight on a real gap are refitted on every observed sample, and the
    real gaps get the weighted average of the refits, each reusing what its hold-out fit chose
    (:meth:`Solver.carry`: Tucker's eps schedule) (``refit=False``: of the hold-out fits, one
@@ -97,10 +98,12 @@ PARTIAL = {"rigid": {"fallback": False, "max_error": 0.05}}
 #: continued from the gap's observed edge (:func:`end_shift`): another trial places a marker
 #: where that trial had it, an offset the post-step's edge fade (over 10 frames) leaves in the
 #: rest of the gap. With training, a trial-end gap kind's weights also weigh the cross-trial
-#: hold-out (:meth:`Auto._cross_holdout`, ``cross=True``).
+#: hold-out (:meth:`Auto._cross_holdout`, ``cross``).
 #: ``pma`` and ``glr`` run only as their twins (``pma+session`` with ``pma`` beside it cost a third
-#: of the session's extra time on scripts/bench_session.py), ``lgrnn`` only on the recording (its
-#: twin cost as much and carried weight on 2 of 10 trials there).
+#: of the session's extra time on scripts/bench_session.py; with ``pma`` and ``glr`` on the
+#: recording too, the session suite's trial-end mean ratio went 0.876 -> 0.870 at 1.84x instead of
+#: 1.33x the suite's fill time alone), ``lgrnn`` only on the recording (its twin cost as much and
+#: carried weight on 2 of 10 trials there).
 SESSION = "+session"
 TWINS = ("li", "glr", "pma", "pca_gloersen")
 ALONE = ("li", "lgrnn", "pca_gloersen")
@@ -386,12 +389,13 @@ class Auto(Solver):
                            "for the weights, each a fit of every candidate (1: about a third "
                            "less time; the mask suite's mean 10.95 -> 11.57 mm at seed 0, "
                            "11.55 -> 13.60 at seed 1)"),
-        "cross": Param(False, bool,
+        "cross": Param(True, bool,
                        doc="with training data: trial-end gap kinds scored by the geometric mean "
                            "of the recording's hold-out and the cross-trial hold-out's mean "
                            "squared errors (see _cross_holdout; on scripts/session_suite.py's "
-                           "trial-end cases 0.868 -> 0.846 of the error alone, at 1.7x the "
-                           "session's fill time)"),
+                           "26 trial-end cases the mean ratio to the error alone 0.914 -> 0.876, "
+                           "cases worse than 1.05x alone 8 -> 5; scripts/bench_session.py "
+                           "1.13x -> 1.24x the batch's time alone)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
