@@ -239,3 +239,27 @@ def test_motion_match_finds_the_trial_inside_another(recording):
     Yt = torch.from_numpy(np.where(seen[..., None], Y, np.nan))
     start, cost = motion_match(torch.nan_to_num(Yt), torch.from_numpy(seen), torch.from_numpy(Z))
     assert start == 1000 and cost < 1e-6, (start, cost)
+
+
+def test_session_pool_keeps_short_trials_whole(tmp_path, monkeypatch):
+    """--session's pool: a trial of at most ``batch.WHOLE`` frames is every other trial's training
+    as it was read (the cross-trial hold-out needs a window as long as the trial), a longer one is
+    cut to its share of the training frames; no trial is its own training."""
+    from torchfill import batch
+
+    monkeypatch.setattr("torchfill.solvers.session.TRAINING_FRAMES", 200)     # shares of 100
+    seq = torchfill.data.load_sample()
+    paths = []
+    for i in range(3):
+        part = seq.with_points(seq.points[320 * i:320 * (i + 1)])
+        part.source = None
+        paths.append(tmp_path / f"trial{i}.c3d")
+        torchfill.write(_hide(part, _trial_end(part, [i, 10 + i], 30)), paths[-1])
+    read = [torchfill.read(p).points for p in paths]
+    pool = batch.session(paths)
+    for k, p in enumerate(paths):
+        others = [read[i] for i in range(3) if i != k]
+        assert [t.n_frames for t in pool[p]] == [320, 320]
+        assert all(np.array_equal(t.points, o, equal_nan=True) for t, o in zip(pool[p], others))
+    monkeypatch.setattr(batch, "WHOLE", 300)
+    assert all(t.n_frames == 100 for p in paths for t in batch.session(paths)[p])

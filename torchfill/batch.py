@@ -178,13 +178,22 @@ def fill_file(job: Job) -> dict:
     return row
 
 
+#: ``--session`` inputs up to this many frames stay whole in the pool: ``auto``'s cross-trial
+#: hold-out lays a trial's gap pattern on a window of another trial at least as long, and the fill
+#: then stacks its training frames from the whole trials as ``fill(training=)`` does. Cut to their
+#: share (200 frames each of the 400-frame trials of scripts/bench_session.py), the trials left
+#: the hold-out out, and a trial's fill erred 57.4 mm where the whole trials gave 18.7.
+WHOLE = 2000
+
+
 def session(inputs: list[Path], read_options: list[dict] | None = None) -> dict[Path, tuple]:
     """``--session``: per input, the other inputs of its marker set as training recordings. Each
-    input is read once and cut to its share of the training frames one fill stacks
-    (:data:`torchfill.solvers.session.TRAINING_FRAMES` over the others of its marker set, in
-    evenly spread runs), so a batch holds one pool per marker set, not a copy per pair of files,
-    and a fill costs the same whatever the size of the session. An input that cannot be read is
-    left out of the pool (its own fill reports the error)."""
+    input is read once; one longer than ``WHOLE`` frames is cut to its share of the training frames
+    one fill stacks (:data:`torchfill.solvers.session.TRAINING_FRAMES` over the others of its
+    marker set, in evenly spread runs). A batch holds one pool per marker set, not a copy per pair
+    of files, at most ``WHOLE`` frames of each file, and a fill stacks the same number of training
+    frames whatever the size of the session. An input that cannot be read is left out of the pool
+    (its own fill reports the error)."""
     import numpy as np
 
     import torchfill
@@ -205,9 +214,12 @@ def session(inputs: list[Path], read_options: list[dict] | None = None) -> dict[
         share = TRAINING_FRAMES // max(1, len(members) - 1)
         cut = []
         for path, seq in members:
-            seen = np.isfinite(seq.points).all(axis=2).any(axis=1)    # frames with a marker seen
-            points = spread_runs(seq.points[seen], max(BLOCK, share), BLOCK)
-            part = seq.with_points(np.asarray(points))
+            if seq.n_frames <= WHOLE:
+                part = seq.with_points(seq.points)
+            else:
+                seen = np.isfinite(seq.points).all(axis=2).any(axis=1)    # frames with a marker seen
+                part = seq.with_points(np.asarray(spread_runs(seq.points[seen], max(BLOCK, share),
+                                                              BLOCK)))
             part.meta = {}
             cut.append((path, part))
         for path, _ in members:

@@ -119,7 +119,8 @@ FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: its gap kinds' mean squared errors are those of the first draw alone. The twins fit the
 #: training trials' frames too, most of a session's time: with them in the second draw a batch of
 #: 10 trials with ``--session`` took 1.86x the batch without it, without them 1.13x
-#: (scripts/bench_session.py); the session suite's trial-end mean ratio moved 0.925 -> 0.914.
+#: (scripts/bench_session.py, the trials cut to 200 frames in the pool then, so without the
+#: cross-trial hold-out); the session suite's trial-end mean ratio moved 0.925 -> 0.914.
 NOT_DRAWN = RuntimeError("not fitted in this draw")
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
 LENGTH_EDGES = (20, 80)
@@ -394,8 +395,8 @@ class Auto(Solver):
                            "of the recording's hold-out and the cross-trial hold-out's mean "
                            "squared errors (see _cross_holdout; on scripts/session_suite.py's "
                            "26 trial-end cases the mean ratio to the error alone 0.914 -> 0.876, "
-                           "cases worse than 1.05x alone 8 -> 5; scripts/bench_session.py "
-                           "1.13x -> 1.24x the batch's time alone)"),
+                           "cases worse than 1.05x alone 8 -> 5; it needs a training recording "
+                           "as long as the recording, and costs about one more round of fits)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
