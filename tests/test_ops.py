@@ -355,3 +355,16 @@ def test_memo_keeps_a_result_by_the_inputs_content():
     assert len(calls) == 4
     memo(lambda: f(x), x, "a")                            # pushed out by the last two entries
     assert len(calls) == 5
+
+
+def test_memo_keeps_at_most_its_byte_budget():
+    from torchfill.ops.cache import Memo
+    memo = Memo(entries=10, max_bytes=3 * 80)                 # three 10-double results
+    for k in range(5):
+        memo(lambda: torch.full((10,), float(k), dtype=torch.float64), k)
+    assert len(memo._kept) == 3 and memo._bytes == 3 * 80  # the oldest two pushed out
+    calls = []
+    memo(lambda: calls.append(1) or torch.zeros(10, dtype=torch.float64), 4)   # still kept
+    assert not calls
+    memo.clear()
+    assert memo._bytes == 0 and not memo._kept

@@ -190,3 +190,38 @@ def test_kept_pieces_give_the_bits_of_a_fresh_fill():
         memo.clear()
     fresh = torchfill.fill(given, method="pma", constraints=False)
     assert np.array_equal(warm, fresh)
+
+
+def test_space_constraint_stops_only_when_a_round_moves_nothing():
+    """Stopping early gives the bits of all five rounds."""
+    from torchfill.solvers.pma import space_constraint
+    g = torch.Generator().manual_seed(3)
+    P = torch.randn(50, 3, generator=g, dtype=torch.float64)
+    refs = [torch.randn(50, 3, generator=g, dtype=torch.float64) * 0.3 for _ in range(3)]
+    ranges = [(torch.tensor(0.8, dtype=torch.float64), torch.tensor(1.2, dtype=torch.float64))] * 3
+
+    def five_rounds(P):
+        for _ in range(5):
+            for Q, (r, R) in zip(reversed(refs), reversed(ranges)):
+                v = P - Q
+                d = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+                t = d.clamp(min=r, max=R)
+                P = torch.where((d > 0) & (t != d), Q + v / d.clamp(min=1e-300) * t, P)
+        return P
+    assert torch.equal(space_constraint(P, refs, ranges), five_rounds(P))
+    inside = refs[0] + torch.nn.functional.normalize(P - refs[0], dim=-1)
+    one = [refs[0]], [ranges[0]]
+    assert torch.equal(space_constraint(inside, *one), inside)      # nothing to move
+
+
+def test_lstsq_is_the_minimum_norm_solution_on_collinear_predictors():
+    from torchfill.solvers.pma import lstsq
+    g = torch.Generator().manual_seed(0)
+    B = torch.randn(200, 5, generator=g, dtype=torch.float64)
+    A = torch.cat([torch.ones(200, 1, dtype=torch.float64), B @ torch.randn(5, 30, generator=g,
+                                                                           dtype=torch.float64)], 1)
+    y = torch.randn(200, 3, generator=g, dtype=torch.float64)
+    ref = torch.linalg.pinv(A, rtol=1e-10) @ y
+    assert torch.allclose(lstsq(A, y), ref, atol=1e-10)
+    assert torch.allclose(lstsq(A[:4], y[:4]), torch.linalg.pinv(A[:4], rtol=1e-10) @ y[:4],
+                          atol=1e-10)                      # fewer rows than predictors

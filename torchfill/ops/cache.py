@@ -56,6 +56,7 @@ class Memo:
     def __init__(self, entries: int, max_bytes: int = 64 << 20) -> None:
         self.entries, self.max_bytes = entries, max_bytes
         self._kept: OrderedDict[bytes, tuple[Any, int]] = OrderedDict()
+        self._bytes = 0                                  # the kept results' size in all
         self._lock = threading.Lock()
 
     def __call__(self, compute: Callable[[], Any], *parts: Any) -> Any:
@@ -72,12 +73,14 @@ class Memo:
         size = _nbytes(value)
         if size <= self.max_bytes:
             with self._lock:
-                self._kept[key] = (value, size)
-                while len(self._kept) > self.entries or \
-                        sum(s for _, s in self._kept.values()) > self.max_bytes:
-                    self._kept.popitem(last=False)
+                if key not in self._kept:
+                    self._kept[key] = (value, size)
+                    self._bytes += size
+                while len(self._kept) > self.entries or self._bytes > self.max_bytes:
+                    self._bytes -= self._kept.popitem(last=False)[1][1]
         return value
 
     def clear(self) -> None:
         with self._lock:
             self._kept.clear()
+            self._bytes = 0
