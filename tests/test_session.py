@@ -60,7 +60,7 @@ def test_session_fills_trial_end_better(cmu85, method):
 
 
 def test_default_with_session(cmu85, monkeypatch):
-    """Measured: alone 11.76 mm (23.20 with one hold-out draw), session 9.44 (8.90 without the
+    """Measured: alone 11.76 mm (23.20 with one hold-out draw), session 9.46 (8.93 without the
     cross-trial hold-out, ``cross=False``). The ``+session`` twins fit the first hold-out draw,
     not the second (the session's time)."""
     from torchfill.solvers.auto import SESSION, Auto

@@ -193,7 +193,7 @@ def rigidity(Y: Tensor, missing: Tensor, max_frames: int = 1000) -> Tensor:
 def _rigidity(Y: Tensor, missing: Tensor, max_frames: int) -> Tensor:
     rows = stride_rows(torch.arange(Y.shape[0], device=Y.device), max_frames)
     S, ok = torch.nan_to_num(Y[rows]), ~missing[rows]
-    D = torch.linalg.vector_norm(S[:, :, None] - S[:, None], dim=-1)   # finite: masks multiply
+    D = torch.cdist(S, S, compute_mode="donot_use_mm_for_euclid_dist")  # finite: masks multiply
     both = ok[:, :, None] & ok[:, None]
     w = both.to(D.dtype)
     count = w.sum(0)
@@ -232,6 +232,16 @@ class _Local:
         self.ok = rows.numel() >= 3
         if not self.ok:
             return
+        if models & {"lpr", "lgrnn"}:                    # the regressions (``li`` has none)
+            self._train(X, rows, models)
+        self.smooth = smooth
+        dist = [d[torch.isfinite(d)] for d in self.d]
+        q = torch.tensor([0.01, 0.99], dtype=Y.dtype, device=Y.device)
+        self.ranges = [tuple(torch.quantile(d, q)) for d in dist]
+        self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
+
+    def _train(self, X: Tensor, rows: Tensor, models: set[str]) -> None:
+        """LPR's coefficients and LGRNN's training pairs on the frame-shape features ``X``."""
         tr = stride_rows(rows, 1000)
         Xl, _, _ = normalize(X, rows)
         Xp, _, _ = normalize(poly2(X), rows)
@@ -242,15 +252,6 @@ class _Local:
             self.beta = lstsq(self.Xp[tr], Yn[tr])
         if "lgrnn" in models:
             self.train = (self.Xl[tr, 1:], Yn[tr])
-        self.smooth = smooth
-        dist = []
-        for d in self.d:
-            d = d[torch.isfinite(d)]
-            dist.append(d)
-        self.dist = dist
-        q = torch.tensor([0.01, 0.99], dtype=Y.dtype, device=Y.device)
-        self.ranges = [tuple(torch.quantile(d, q)) for d in dist]
-        self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
 
     def _edges(self, a: int, b: int):
         T = self.T
