@@ -271,3 +271,20 @@ def test_default_does_not_jump_where_the_segment_fill_has_a_hole(recording):
     assert np.isfinite(steps).all()
     assert steps.max() < 1.5 * np.nanmax(observed)
     assert np.array_equal(out.points[~seq.mask], seq.points[~seq.mask])
+
+
+def test_a_candidate_scored_on_fewer_gaps_leans_more_on_its_parent():
+    """A ``+session`` twin fits the first hold-out draw only (NaN in the second draw's gaps): its
+    kinds' errors are shrunk with the number of gaps it was scored on, not every gap of the kind
+    (which trusted its first-draw errors as if they were two draws')."""
+    from torchfill.solvers.auto import kind_mse
+    nan = float("nan")
+    kinds = torch.tensor([0, 0, 0, 0, 1, 1, 1, 1])          # 0: inside, 1: at a trial end
+    gap_ids = torch.arange(8)
+    err2 = torch.tensor([[1.0] * 8,
+                         [0.25, 0.25, nan, nan, 4.0, 4.0, nan, nan]], dtype=torch.float64)
+    M = kind_mse(err2, kinds, gap_ids, 2, prior=10.0)
+    assert torch.allclose(M[:, 0], torch.ones(2, dtype=torch.float64))   # all 8 gaps scored
+    every = 2.125                                            # candidate 1 over its 4 gaps
+    inside = (2 * 0.25 + 10 * every) / 12                    # 2 gaps scored inside, not 4
+    assert torch.isclose(M[0, 1], torch.tensor((2 * 0.25 + 10 * inside) / 12, dtype=torch.float64))

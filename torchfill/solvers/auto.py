@@ -272,15 +272,21 @@ def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
     :func:`kind_weights` for the arguments).
 
     A kind's mean squared errors are shrunk towards those of all gaps of its trial-end status,
-    and those towards all gaps, each with the weight of ``prior`` gaps against the kind's own
-    number of held-out gaps (samples of one gap are not independent): a kind seen in a few
+    and those towards all gaps, each with the weight of ``prior`` gaps against the number of the
+    kind's held-out gaps the candidate was scored on (samples of one gap are not independent; a
+    ``+session`` twin skips the second draw, a partial candidate fills some): a kind seen in a few
     held-out gaps no longer picks a candidate that won there by chance (on the 19-case mask suite
     a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method)."""
+    gaps, slot = torch.unique(gap_ids, return_inverse=True)
+    scored = (~torch.isnan(err2)).to(err2.dtype)
+
     def mse(sel: Tensor, parent: Tensor) -> Tensor:
-        n = int(torch.unique(gap_ids[sel]).numel()) if bool(sel.any()) else 0
-        own = err2[:, sel].nanmean(dim=1) if n else parent
-        own = torch.where(torch.isnan(own), parent, own)       # a partial candidate that
-                                                                # fills none of them: its parent
+        if not bool(sel.any()):
+            return parent
+        hit = torch.zeros(err2.shape[0], gaps.numel(), dtype=err2.dtype, device=err2.device)
+        n = (hit.index_add_(1, slot[sel], scored[:, sel]) > 0).sum(dim=1).to(err2.dtype)
+        own = err2[:, sel].nanmean(dim=1)      # n per candidate: the gaps it was scored on (a
+        own = torch.where(n > 0, own, parent)  # twin fits one draw, a partial fills some)
         return (n * own + prior * parent) / (n + prior)
 
     every = err2.nanmean(dim=1)
