@@ -29,10 +29,12 @@ BLOCK = 100
 
 
 def training_rows(training: Sequence[Tensor], mu: Tensor, sigma: Tensor,
-                  budget: int = TRAINING_FRAMES, block: int = BLOCK) -> list[Tensor]:
+                  budget: int | None = None, block: int = BLOCK) -> list[Tensor]:
     """The training recordings in a fit's normalized units (``(t - mu) / sigma``), cut to at most
-    ``budget`` frames in runs of ``block`` frames evenly spread over all of them; frames with no
-    observed marker are dropped. New tensors: the training data are not changed."""
+    ``budget`` frames (default ``TRAINING_FRAMES``, read at the call) in runs of ``block`` frames
+    evenly spread over all of them; frames with no observed marker are dropped. New tensors: the
+    training data are not changed."""
+    budget = TRAINING_FRAMES if budget is None else budget
     items = [torch.as_tensor(t).to(dtype=mu.dtype, device=mu.device) for t in training]
     items = [t[torch.isfinite(t).all(dim=-1).any(dim=-1)] for t in items]
     items = [t for t in items if t.shape[0] > 0]
