@@ -18,7 +18,7 @@ from torchfill import gaps
 from torchfill.cli import main
 from torchfill.metrics import gap_runs, rmse, rmse_missing
 from torchfill.solvers import get_solver
-from torchfill.solvers.auto import gap_kind, kind_weights, run_geometry
+from torchfill.solvers.auto import consensus, gap_kind, kind_weights, run_geometry
 
 CANDIDATES = ("pchip", "pca_train", "svt", "tucker_tnn")
 
@@ -129,6 +129,29 @@ def test_a_second_draw_holds_out_other_observed_samples():
     assert [stage for stage, _ in hidden] == ["fit", "draw", "refit"]
     assert all(bool(m[missing].all()) for _, m in hidden)
     assert all(bool(h.any()) for h in held) and not torch.equal(*held)
+
+
+def test_consensus_weighs_down_the_candidate_that_strays_on_its_gap():
+    """On a gap where one of four weighted candidates strays from the others, its weight falls
+    below theirs; a gap where they agree keeps its weights' ratios; a gap with fewer than three
+    weighted candidates is left as it is; the weights still sum to one per sample."""
+    T, J, C = 12, 3, 4
+    fills = torch.zeros(C, T, J, 3, dtype=torch.float64)
+    fills[:, 2:6, 0, 0] = torch.tensor([0.0, 0.1, -0.1, 5.0])[:, None]    # candidate 3 strays
+    fills[:, 2:6, 1, 0] = torch.tensor([0.0, 0.1, -0.1, 0.05])[:, None]   # all agree
+    missing = torch.zeros(T, J, dtype=torch.bool)
+    missing[2:6] = True
+    w = torch.tensor([0.4, 0.3, 0.2, 0.1], dtype=torch.float64)[:, None, None].expand(C, T, J).clone()
+    w[2:, :, 2] = 0.0
+    w[:, :, 2] /= w[:, :, 2].sum(dim=0)
+    out = consensus(w, fills, missing)
+    torch.testing.assert_close(out.sum(dim=0), torch.ones(T, J, dtype=torch.float64))
+    ratio = (out[3, 2:6, 0] / out[0, 2:6, 0]) / (w[3, 2:6, 0] / w[0, 2:6, 0])
+    assert bool((ratio < 0.3).all())                                      # the stray one
+    assert bool((out[:3, 2:6, 0].sum(dim=0) > 0.95).all())                  # the rest: theirs
+    assert bool((out[0, 2:6, 1] / out[1, 2:6, 1] > 1.0).all())            # agreeing: order kept
+    torch.testing.assert_close(out[:, :, 2], w[:, :, 2])                  # two weighted: as given
+    torch.testing.assert_close(out[:, :2], w[:, :2])                      # observed: as given
 
 
 def test_unknown_candidate_is_an_error():
