@@ -182,7 +182,7 @@ def run(case: Case, methods, reuse: dict, seed: int = 0) -> tuple[dict, list]:
             try:
                 if m == DEFAULT:
                     out, std = torchfill.fill(X, extrapolate=None, return_std=True,
-                                              params={"seed": seed} if seed else None)
+                                              params={"seed": seed})
                 else:
                     out = torchfill.fill(X, method=m, extrapolate=None)
             except ValueError as err:
