@@ -108,7 +108,10 @@ def main() -> None:
     ap.add_argument("--summary", type=Path, nargs="*", help="summarize these CSVs and stop")
     args = ap.parse_args()
     if args.summary:
-        rows = [r for path in args.summary for r in csv.DictReader(open(path))]
+        rows = []
+        for path in args.summary:
+            with open(path, newline="") as handle:
+                rows += list(csv.DictReader(handle))
         print(f"{len(rows)} cases\n" + summarize(rows))
         return
     cases = (suite.mask_suite(args.mask_suite) if args.mask_suite else []) + suite.cases()
