@@ -14,8 +14,9 @@ its trial-end gaps mirrored) is scored three ways, each on the observed samples 
   hidden.
 
 Per case and style: the real error of the method with the lowest held-out error over the best
-real error ("pick"), and the same for the inverse-MSE average of the methods within 1.5x of the
-best held-out MSE ("soft", as ``auto``'s weights, one kind). Errors are 3-D RMS in mm, every
+real error ("pick"), and the RMS of the real errors weighted as the inverse-MSE average of the
+methods within 1.5x of the best held-out MSE weights them ("soft", ``auto``'s weights for one
+kind; an upper bound on that average's error). Errors are 3-D RMS in mm, every
 fill through ``fill()``'s post-step with ``extrapolate=None``::
 
     OMP_NUM_THREADS=1 python scripts/holdout_styles.py --mask-suite ref/masks --shard 0/2 --csv A.csv
