@@ -40,7 +40,7 @@ from docblock import write_csv  # noqa: E402
 from torchfill.solvers.auto import Auto  # noqa: E402
 
 METHODS = ("pchip", "li", "lgrnn", "pma", "pca_gloersen", "tucker_tnn")
-STYLES = ("real", "A", "B", "C")
+STYLES = ("A", "B", "C")
 
 
 def _fill(X: np.ndarray, method: str) -> np.ndarray:
@@ -60,12 +60,13 @@ def score(case, seed: int = 0) -> dict:
     auto.generator_ = torch.Generator().manual_seed(seed)
     V = auto._holdout(torch.from_numpy(~m)).numpy()
     real = {k: _fill(np.where(m[..., None], np.nan, P), k) for k in METHODS}
-    median = np.nanmedian(np.stack([real[k] for k in METHODS if k != "pchip"]), axis=0)
+    common = np.where(m[..., None], np.nanmedian(
+        np.stack([real[k] for k in METHODS if k != "pchip"]), axis=0), P)
+    common[V] = np.nan
     row = {"case": case.name, "seed": seed, "missing": int(m.sum()), "held_out": int(V.sum())}
     for k in METHODS:
         own = np.where(m[..., None], real[k], P)
-        common = np.where(m[..., None], median, P)
-        own[V], common[V] = np.nan, np.nan
+        own[V] = np.nan
         row[f"{k}_real"] = rmse(real[k], m)
         if V.any():
             row[f"{k}_A"] = rmse(_fill(np.where((m | V)[..., None], np.nan, P), k), V)
@@ -92,7 +93,7 @@ def regrets(row: dict, style: str) -> tuple[float, float]:
 def summarize(rows: list[dict]) -> str:
     lines = ["| hold-out | pick: mean regret | cases > 1.25x | soft: mean regret | cases > 1.25x |",
              "|---|---:|---:|---:|---:|"]
-    for style in STYLES[1:]:
+    for style in STYLES:
         r = np.array([regrets(row, style) for row in rows])
         r = r[np.isfinite(r).all(axis=1)]
         lines.append(f"| {style} | {r[:, 0].mean():.2f} | {(r[:, 0] > 1.25).sum()} of {len(r)} | "
@@ -122,7 +123,7 @@ def main() -> None:
         r = rows[-1]
         print(f"{case.name}: " + ", ".join(
             f"{k} {r[f'{k}_real']:.1f}/" + "/".join(f"{r.get(f'{k}_{s}', np.nan):.1f}"
-                                                   for s in STYLES[1:]) for k in METHODS),
+                                                   for s in STYLES) for k in METHODS),
               flush=True)
         if args.csv:
             write_csv(args.csv, rows)
