@@ -18,7 +18,8 @@ from torchfill import gaps
 from torchfill.cli import main
 from torchfill.metrics import gap_runs, rmse, rmse_missing
 from torchfill.solvers import get_solver
-from torchfill.solvers.auto import consensus, gap_kind, kind_weights, run_geometry
+from torchfill.solvers.auto import (MAX_DRAWS, consensus, gap_kind, kind_weights,
+                                   run_geometry)
 
 CANDIDATES = ("pchip", "pca_train", "svt", "tucker_tnn")
 
@@ -116,7 +117,7 @@ def test_a_second_draw_holds_out_other_observed_samples():
     """The weights pool two hold-out draws (which shift one draw takes moves single cases by
     20-30 %): each hides the real gaps and observed samples of its own, not the first's."""
     X = _gappy()
-    solver = get_solver("auto", candidates=["pchip", "spline", "svt"])
+    solver = get_solver("auto", candidates=["pchip", "spline", "svt"], min_gaps=0)
     hidden, fit_all = [], solver._fit_all
 
     def spy(names, fit_missing, stage="fit"):
@@ -129,6 +130,22 @@ def test_a_second_draw_holds_out_other_observed_samples():
     assert [stage for stage, _ in hidden] == ["fit", "draw", "refit"]
     assert all(bool(m[missing].all()) for _, m in hidden)
     assert all(bool(h.any()) for h in held) and not torch.equal(*held)
+
+
+@pytest.mark.parametrize("min_gaps, draws", [(0, 2), (6, 2), (40, MAX_DRAWS)])
+def test_a_recording_with_few_gaps_gets_more_draws(min_gaps, draws):
+    """A draw of a recording with few gaps holds out few (``_gappy``: three real gaps, three to
+    four held out per draw), and which ones decides the weights: the draws go on, up to
+    MAX_DRAWS, until ``min_gaps`` held-out gaps are pooled."""
+    solver = get_solver("auto", candidates=["pchip", "spline"], min_gaps=min_gaps)
+    stages, fit_all = [], solver._fit_all
+
+    def spy(names, fit_missing, stage="fit"):
+        stages.append(stage)
+        return fit_all(names, fit_missing, stage)
+    solver._fit_all = spy
+    solver.fit(torch.from_numpy(_gappy()))
+    assert stages.count("fit") + stages.count("draw") == draws
 
 
 def test_consensus_weighs_down_the_candidate_that_strays_on_its_gap():
