@@ -263,6 +263,26 @@ def test_a_partial_candidate_without_held_out_gaps_of_a_kind_leans_on_its_parent
     assert W[2, 1] == 1.0 and W[3, 1] == 1.0             # it won the segment samples it was seen on
 
 
+def test_a_partial_candidate_does_not_win_its_kinds_on_the_others_parents():
+    """Candidate 1 fills only the segment kind (2), as well as candidate 0 does there; candidate 0
+    also fills the hard samples elsewhere. With the segment kinds' parents taken among the
+    segment samples the two share the kind; over all gaps candidate 0's parent held its hard
+    samples and candidate 1 won on the shrinkage alone."""
+    kinds = torch.tensor([0] * 8 + [2, 2])                 # 0: inside, 2: inside + segment
+    gap_ids = torch.arange(10)
+    nan = float("nan")
+    err2 = torch.tensor([[1.0] * 8 + [0.01, 0.01],
+                         [nan] * 8 + [0.01, 0.01]], dtype=torch.float64)
+    allowed = torch.tensor([[True, False], [True, False], [True, True], [True, True]])
+    over_all = kind_weights(err2, kinds, gap_ids, 4, combine="average", keep_ratio=1.5,
+                            allowed=allowed)
+    within = kind_weights(err2, kinds, gap_ids, 4, combine="average", keep_ratio=1.5,
+                          allowed=allowed, partial_from=2)
+    assert over_all[2, 1] == 1.0
+    assert torch.allclose(within[2], torch.tensor([0.5, 0.5], dtype=torch.float64))
+    assert torch.equal(within[:2], over_all[:2])          # the other kinds as before
+
+
 def test_a_marker_never_seen_twice_in_a_row_has_the_median_speed_not_zero():
     """The error model's speed feature: the mean squared step where a marker is seen in two
     consecutive frames; a marker never seen so takes the other markers' median (unknown, not 0:

@@ -140,7 +140,8 @@ LENGTH_EDGES = (20, 80)
 #: mostly misses (ktk_tennis_serve_nan: real short gaps at 11x the median, held-out ones at 0.9x).
 FAST = 3.0
 #: A kind's held-out errors count as much as their number of held-out gaps against this many
-#: gaps of its parent (all gaps at a trial end / inside, then all gaps): see :func:`kind_weights`.
+#: gaps of its parent (all gaps at a trial end / inside, then all gaps, each among the samples
+#: a partial candidate fills or among the others): see :func:`kind_mse`.
 PRIOR_GAPS = 10.0
 #: Window starts tried for the cross-trial hold-out (:func:`motion_match`), every this many frames.
 MATCH_STRIDE = 10
@@ -265,17 +266,17 @@ def end_shift(F: Tensor, missing: Tensor) -> Tensor:
 
 def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, combine: str,
                  keep_ratio: float, prior: float = PRIOR_GAPS,
-                 allowed: Tensor | None = None) -> Tensor:
+                 allowed: Tensor | None = None, partial_from: int | None = None) -> Tensor:
     """Candidate weights per kind, (n_kinds, C), from held-out squared errors ``err2`` (C, N) of
     samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,); a candidate
     takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere). The mean squared
     errors per kind are :func:`kind_mse`'s."""
-    return mse_weights(kind_mse(err2, kinds, gap_ids, n_kinds, prior), combine=combine,
+    return mse_weights(kind_mse(err2, kinds, gap_ids, n_kinds, prior, partial_from), combine=combine,
                        keep_ratio=keep_ratio, allowed=allowed)
 
 
 def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
-             prior: float = PRIOR_GAPS) -> Tensor:
+             prior: float = PRIOR_GAPS, partial_from: int | None = None) -> Tensor:
     """Per kind, each candidate's held-out mean squared error (n_kinds, C) (see
     :func:`kind_weights` for the arguments).
 
@@ -284,7 +285,15 @@ def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
     kind's held-out gaps the candidate was scored on (samples of one gap are not independent; a
     ``+session`` twin skips the second draw, a partial candidate fills some): a kind seen in a few
     held-out gaps no longer picks a candidate that won there by chance (on the 19-case mask suite
-    a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method)."""
+    a kind decided by < 60 samples put PCHIP on 100-frame gaps: 2.5x the best method).
+
+    With ``partial_from`` (even), the kinds from that index on are those a partial candidate
+    fills, and their parents are taken among their own samples: the partial candidate is scored
+    on those only, while a parent over all gaps held the others' errors where it does not fill,
+    so it won its kinds on the shrinkage alone (walking_hybrid_1_2 laid on hdm05_bd: ``rigid``
+    took every segment kind, 7.0 mm on those samples of the real gaps where ``pma`` errs 2.0).
+    The other kinds keep the parents over all gaps (every candidate there fills every sample;
+    parents without the segment samples cost ``cmu0201_m30_L100`` 8.1 -> 12.5 mm)."""
     gaps, slot = torch.unique(gap_ids, return_inverse=True)
     scored = (~torch.isnan(err2)).to(err2.dtype)
 
@@ -299,7 +308,14 @@ def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
 
     every = err2.nanmean(dim=1)
     by_edge = [mse(kinds % 2 == e, every) for e in (0, 1)]
-    return torch.stack([mse(kinds == k, by_edge[k % 2]) for k in range(n_kinds)])
+    out = [mse(kinds == k, by_edge[k % 2]) for k in range(n_kinds)]
+    part = kinds >= (partial_from if partial_from is not None else n_kinds)
+    if bool(part.any()):                       # the partial candidates' kinds: parents there
+        top = err2[:, part].nanmean(dim=1)
+        top = torch.where(torch.isnan(top), every, top)       # never scored there
+        by_edge = [mse(part & (kinds % 2 == e), top) for e in (0, 1)]
+        out[partial_from:] = [mse(kinds == k, by_edge[k % 2]) for k in range(partial_from, n_kinds)]
+    return torch.stack(out)
 
 
 def mse_weights(m: Tensor, *, combine: str, keep_ratio: float,
@@ -531,13 +547,14 @@ class Auto(Solver):
         if e_all.shape[1] == 0:                                     # nothing to choose on
             W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         elif cross is not None:
-            Mo, Mc = kind_mse(e_all, k_all, g_all, n_kinds), kind_mse(*cross, n_kinds)
+            Mo = kind_mse(e_all, k_all, g_all, n_kinds, partial_from=n_base)
+            Mc = kind_mse(*cross, n_kinds, partial_from=n_base)
             end = (torch.arange(n_kinds, device=Mo.device) % 2 == 1)[:, None]
             M = torch.where(end & ~torch.isnan(Mc), (Mo * Mc).sqrt(), Mo)
             W = mse_weights(M, combine=self.combine, keep_ratio=self.keep_ratio, allowed=allowed)
         else:
             W = kind_weights(e_all, k_all, g_all, n_kinds, combine=self.combine,
-                             keep_ratio=self.keep_ratio, allowed=allowed)
+                             keep_ratio=self.keep_ratio, allowed=allowed, partial_from=n_base)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
             fills, real_donor = self._refit(names, fills, w, ~seen)
