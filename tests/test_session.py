@@ -60,9 +60,9 @@ def test_session_fills_trial_end_better(cmu85, method):
 
 
 def test_default_with_session(cmu85, monkeypatch):
-    """Measured: alone 11.76 mm (23.20 with one hold-out draw), session 9.46 (8.93 without the
-    cross-trial hold-out, ``cross=False``). The ``+session`` twins fit the first hold-out draw,
-    not the second (the session's time)."""
+    """Measured: alone 11.66 mm, session 7.67 (11.69 and 7.81 with two hold-out draws always,
+    ``min_gaps=0``). The ``+session`` twins fit the first hold-out draw, not the later ones (the
+    session's time)."""
     from torchfill.solvers.auto import SESSION, Auto
 
     X, truth, mask, train = cmu85
@@ -82,7 +82,8 @@ def test_default_with_session(cmu85, monkeypatch):
     seen = np.isfinite(X.points)
     assert np.array_equal(out.points[seen], X.points[seen])
     assert stages[0][0] == "fit" and stages[0][1]                  # the session's first draw
-    assert [twins for stage, twins in stages if stage == "draw"] == [[], []]
+    draws = [twins for stage, twins in stages if stage == "draw"]
+    assert draws and all(twins == [] for twins in draws)
 
 
 def test_a_marker_never_seen_is_placed_from_the_training(cmu85):
