@@ -271,8 +271,8 @@ def kind_weights(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int, *, 
     samples of kind ``kinds`` (N,) that belong to the held-out gaps ``gap_ids`` (N,); a candidate
     takes part in kind ``k`` only where ``allowed[k, c]`` (default: everywhere). The mean squared
     errors per kind are :func:`kind_mse`'s."""
-    return mse_weights(kind_mse(err2, kinds, gap_ids, n_kinds, prior, partial_from), combine=combine,
-                       keep_ratio=keep_ratio, allowed=allowed)
+    M = kind_mse(err2, kinds, gap_ids, n_kinds, prior, partial_from)
+    return mse_weights(M, combine=combine, keep_ratio=keep_ratio, allowed=allowed)
 
 
 def kind_mse(err2: Tensor, kinds: Tensor, gap_ids: Tensor, n_kinds: int,
