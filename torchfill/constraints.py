@@ -263,14 +263,19 @@ def _interpolate_blackouts(F, observed, free, report) -> None:
         F[black & ~inside, j] = np.nan
 
 
-def _blend_edges(F, free) -> None:
-    """Offset each gap's fill so that it continues the trajectory at both edges (blended)."""
+def _blend_edges(F, free, held=None) -> None:
+    """Offset each gap's fill so that it continues the trajectory at both edges (blended).
+    ``held`` (T, J): only an edge beside these samples moves the fill; beside another finite
+    sample the offset is zero there (see :func:`meet_kept`)."""
     T = F.shape[0]
     ok = _finite(F)
     for j, a, b, _, _ in _runs(free, T):
         L = b - a
         d0 = _edge_offset(F, ok, j, a, side=-1)
         d1 = _edge_offset(F, ok, j, b - 1, side=+1)
+        if held is not None:
+            d0 = d0 if d0 is None or held[a - 1, j] else np.zeros(F.shape[2])
+            d1 = d1 if d1 is None or held[b, j] else np.zeros(F.shape[2])
         if d0 is None and d1 is None:
             continue
         if d0 is None or d1 is None:                   # held at one edge: the offset fades
@@ -279,6 +284,16 @@ def _blend_edges(F, free) -> None:
             continue
         s = np.linspace(0.0, 1.0, L)[:, None] if L > 1 else np.full((1, 1), 0.5)
         F[a:b, j] += (1 - s) * d0 + s * d1
+
+
+def meet_kept(F: np.ndarray, fill: np.ndarray, kept: np.ndarray) -> None:
+    """Offset each run of ``fill`` samples (T, J) of ``F`` (T, J, D, in place) that borders an
+    earlier fill kept as it was (``kept``), so that it continues that kept trajectory as step 4
+    continues an observed one; its other edge stays where it is. A second fill treats the
+    earlier fills as gaps and puts them back after (``fill()`` on a filled recording): the new
+    fill beside them otherwise stepped to them (numediart_03_rolling's LR_FM5, whose file marks
+    two frames as filled before a trial-end gap: 35 mm in one frame, observed steps 1 mm)."""
+    _blend_edges(F, fill & _finite(F), held=kept)
 
 
 def _edge_offset(F, ok, j, t, side: int):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .constraints import constrain, constrain_candidates
+from .constraints import constrain, constrain_candidates, meet_kept
 from .qc import EST_CHECK_MM, alone, per_mm, untested
 from .metrics import gap_runs
 from . import windows
@@ -489,6 +489,7 @@ def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool
     result = fill(bare, method, return_std=return_std, **kwargs)
     out, std = result if return_std else (result, None)
     out.points[prior] = data.points[prior]
+    meet_kept(out.points, out.meta["filled"] & ~prior, prior)
     out.meta["filled"] = out.meta["filled"] | prior
     if std is None:
         return out

@@ -127,3 +127,21 @@ def test_a_second_fill_keeps_the_first_and_fills_what_it_may(tmp_path):
     blackout = x.mask.all(axis=1)                         # only frames with nothing seen stay
     np.testing.assert_array_equal(f2.mask, np.repeat(blackout[:, None], x.n_markers, axis=1))
     np.testing.assert_array_equal(f2.meta["filled"], x.mask & ~f2.mask)
+
+
+@pytest.mark.parametrize("method", ["linear", None], ids=["linear", "default"])
+def test_a_new_fill_meets_an_earlier_fill_it_borders(method):
+    """A file's own fill (kept as it was) that disagrees with ours right before a gap: the new
+    fill starts from the kept samples, not from where our fill of them would have been."""
+    seq = synthetic(T=150, J=8, gaps=False)
+    P = seq.points
+    P[60:63, 2] += 30.0                              # an earlier fill, 30 mm off the motion
+    P[63:90, 2] = np.nan                             # the gap after it
+    seq.meta["filled"] = np.zeros(P.shape[:2], dtype=bool)
+    seq.meta["filled"][60:63, 2] = True
+    out = _fill(seq, method)
+    np.testing.assert_array_equal(out.points[60:63, 2], P[60:63, 2])
+    steps = np.linalg.norm(np.diff(out.points[:, 2], axis=0), axis=1)
+    observed = np.delete(steps, np.s_[58:91])                 # steps of the untouched motion
+    assert steps[62] < 2 * observed.max()            # kept -> new: no 30 mm step
+    assert steps[89] < 2 * observed.max()            # new -> observed: still continuous
