@@ -246,8 +246,10 @@ def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
         _check_suffix(Path(args.std), ".csv", "--std")
         plan.add_output(args.std, "--std file")
     if args.report:
+        _check_suffix(Path(args.report), ".html", "--report", REPORT_ALSO)
         plan.add_output(args.report, "report")
     if getattr(args, "report_json", None):
+        _check_suffix(Path(args.report_json), ".json", "--report-json")
         plan.add_output(args.report_json, "--report-json file")
     return out, backup
 
@@ -284,9 +286,16 @@ def _check_format(out: Path, openpose: bool) -> None:
     _pick(out, "write")
 
 
-def _check_suffix(path: Path, suffix: str, option: str) -> None:
-    if path.suffix.lower() != suffix:
-        raise ValueError(f"{path}: {option} writes {suffix}, found {path.suffix or 'no suffix'}")
+#: The hint after a ``--report`` name of another format.
+REPORT_ALSO = " (the per-gap verdicts as JSON: --report-json FILE.json)"
+
+
+def _check_suffix(path: Path, suffix: str, option: str, also: str = "") -> None:
+    """One line now if ``path`` does not end in ``suffix`` (or ``.htm`` for ``.html``): the file
+    would hold another format than its name says (``also``: what to use instead)."""
+    if path.suffix.lower() != suffix and (suffix, path.suffix.lower()) != (".html", ".htm"):
+        raise ValueError(f"{path}: {option} writes {suffix}, found "
+                         f"{path.suffix or 'no suffix'}{also}")
 
 
 def _fill_options(args, src) -> tuple[str, dict]:
@@ -374,7 +383,10 @@ def _cmd_qc(args) -> int:
     from torchfill.io.outputs import Outputs
 
     report = Path(args.output) if args.output else Path(args.filled).with_suffix(".qc.html")
+    _check_suffix(report, ".html", "qc -o", " (the verdicts as JSON: --json FILE.json)")
     to_file = args.json and args.json != "-"
+    if to_file:
+        _check_suffix(Path(args.json), ".json", "--json")
     with Outputs() as plan:
         for path in (args.input, args.filled):
             _check_input(Path(path))
@@ -480,6 +492,8 @@ def _cmd_fill_batch(args) -> int:
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
     method, options = _fill_options(args, None)
+    _side_check(args.report, "--report")
+    _side_check(args.std, "--std")
     out_dir = make_folder(args.out_dir)
     side = {"report": _side_folder(args.report, "--report"), "std": _side_folder(args.std, "--std")}
     options_of = {src: _pose_options(args, src) for src in inputs}
@@ -542,12 +556,24 @@ def _side_folder(value: str | None, option: str) -> str | None:
 
     if value is None:
         return None
-    if "{stem}" in value or "{name}" in value:
+    if _side_check(value, option):
         make_folder(Path(value).parent if str(Path(value).parent) else Path("."))
         return value
+    make_folder(value)
+    return str(Path(value)) + os.sep
+
+
+def _side_check(value: str | None, option: str) -> bool:
+    """One line now, before any folder is made, unless ``value`` is a folder or a name with
+    ``{stem}`` ending in the option's suffix; whether it is such a name."""
+    if value is None:
+        return False
+    if "{stem}" in value or "{name}" in value:
+        _check_suffix(Path(value), ".html" if option == "--report" else ".csv", option,
+                      REPORT_ALSO if option == "--report" else "")
+        return True
     if value.endswith(("/", os.sep)) or Path(value).is_dir() or not Path(value).suffix:
-        make_folder(value)
-        return str(Path(value)) + os.sep
+        return False
     raise ValueError(f"{value}: with several inputs {option} takes a folder or a name with "
                      "{stem} (e.g. reports/{stem}.qc.html)")
 
