@@ -7,9 +7,11 @@ the truth: at 120 000 frames the 74 gaps across a junction came out at 89 mm aft
 step limit, 8 mm before); every 3 000-frame block gets the Tucker paper's gaps (``gaps.multi_gap``:
 20 markers, up to 5 gaps each) of a random length in 100..200 frames, so the gap density is the
 same at every length.
-Each length runs in a fresh process (peak RSS from ``resource.getrusage``).
+Each length runs in a fresh process (peak RSS from ``resource.getrusage``). The default's
+candidates run side by side only with two threads or more (``OMP_NUM_THREADS=1``: one after the
+other, 25 s instead of 15 s at 3 000 frames).
 
-    OMP_NUM_THREADS=1 nice python scripts/bench_long.py --frames 3000 12000 36000 120000
+    OMP_NUM_THREADS=2 nice python scripts/bench_long.py --frames 3000 12000 36000 120000
     OMP_NUM_THREADS=1 nice python scripts/bench_long.py --frames 12000 --window 600 1200 2400 0
 """
 from __future__ import annotations
