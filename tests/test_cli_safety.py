@@ -57,6 +57,7 @@ def test_no_output_or_side_output_lands_on_an_input(tmp_path, walk, capsys, monk
     _recording(tmp_path / "a.c3d", walk)
     _recording(tmp_path / "b.npz", walk, seed=1)
     os.link(tmp_path / "a.c3d", tmp_path / "hard.c3d")
+    os.link(tmp_path / "a.c3d", tmp_path / "hard.html")       # a report's name, the input's file
     before = _snapshot(tmp_path)
     cases = [
         (["fill", "a.c3d", "-o", "a.c3d"], "would overwrite the input a.c3d"),
@@ -67,6 +68,8 @@ def test_no_output_or_side_output_lands_on_an_input(tmp_path, walk, capsys, monk
         (["fill", "a.c3d", "-o", "o.c3d", "--report", "a.c3d"], "--report writes .html"),
         (["fill", "a.c3d", "-o", "o.c3d", "--report", "r.csv"],
          "--report writes .html, found .csv (the per-gap verdicts as JSON: --report-json"),
+        (["fill", "a.c3d", "-o", "o.c3d", "--report", "hard.html"],
+         "report would overwrite the input"),
         (["fill", "a.c3d", "-o", "o.c3d", "--report-json", "r.html"], "--report-json writes .json"),
         (["fill", "a.c3d", "b.npz", "--out-dir", "d", "--report", "{stem}.csv"],
          "--report writes .html"),
@@ -77,6 +80,7 @@ def test_no_output_or_side_output_lands_on_an_input(tmp_path, walk, capsys, monk
          "would overwrite the training b.npz"),
         (["qc", "a.c3d", "b.npz", "-o", "a.c3d"], "qc -o writes .html, found .c3d"),
         (["qc", "a.c3d", "b.npz", "--json", "a.c3d"], "--json writes .json"),
+        (["qc", "a.c3d", "b.npz", "-o", "hard.html"], "qc report would overwrite the input"),
     ]
     for argv, needle in cases:
         assert main(argv) == 2, argv
