@@ -62,9 +62,11 @@ def mean_distances(P: Tensor, rows: Tensor, max_frames: int = 500) -> Tensor:
 
 def _pca(G: Tensor, n: int) -> tuple[Tensor, Tensor]:
     """Principal vectors (columns) and singular values of ``N / sqrt(n-1)``, descending, from the
-    Gram matrix ``G = N.T @ N`` (3J x 3J: far cheaper than an SVD of the n x 3J data)."""
-    lam, V = torch.linalg.eigh((G + G.T) / (2 * max(n - 1, 1)))
-    return V.flip(-1), lam.flip(-1).clamp(min=0).sqrt()
+    Gram matrix ``G = N.T @ N`` (3J x 3J: far cheaper than an SVD of the n x 3J data), in
+    float64 whatever ``G``'s dtype (float32's eigh failed to converge on HDM05 bd_05-01 with
+    simulated gaps: the small matrix costs nothing in double)."""
+    lam, V = torch.linalg.eigh(((G + G.T) / (2 * max(n - 1, 1))).double())
+    return V.flip(-1).to(G.dtype), lam.flip(-1).clamp(min=0).sqrt().to(G.dtype)
 
 
 def _n_eig(s: Tensor, min_cum_sv: float) -> int:
