@@ -7,7 +7,9 @@ the truth: at 120 000 frames the 74 gaps across a junction came out at 89 mm aft
 step limit, 8 mm before); every 3 000-frame block gets the Tucker paper's gaps (``gaps.multi_gap``:
 20 markers, up to 5 gaps each) of a random length in 100..200 frames, so the gap density is the
 same at every length.
-Each length runs in a fresh process (peak RSS from ``resource.getrusage``). The default's
+Each length runs in a fresh process (peak RSS from ``resource.getrusage``); besides the time and
+the RMSE, the error estimate's checks of the real-gap suite (per-gap Spearman of estimated vs real
+error, share of filled coordinates within 2 std). The default's
 candidates run side by side only with two threads or more (``OMP_NUM_THREADS=1``: one after the
 other, 25 s instead of 15 s at 3 000 frames).
 
@@ -29,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's torchfill, also in the per-length subprocesses
 from torchfill.data import data_dir  # noqa: E402  (this checkout's, after the path)
+from real_gap_suite import std_checks  # noqa: E402  (the suites' checks of the error estimate)
 
 DATA = data_dir(ROOT)   # $TORCHFILL_DATA or ../shared/data
 FILE = "hdm05_bd_05-01_01_120.c3d"
@@ -60,14 +63,16 @@ def one(frames: int, method: str | None, window: int | None) -> dict:
     truth, mask = recording(frames)
     given = np.where(mask[..., None], np.nan, truth)
     start = time.perf_counter()
-    out = torchfill.fill(given, method, window=window)
+    out, std = torchfill.fill(given, method, window=window, return_std=True)
     seconds = time.perf_counter() - start
     assert np.array_equal(out[~mask], truth[~mask])
+    rho, within, _ = std_checks(out, std, truth, mask)
     return {"frames": frames, "method": method or torchfill.default_method(),
             "window": window, "seconds": round(seconds, 2),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
             "rmse_missing_mm": round(metrics.rmse_missing(out, truth, mask), 2),
-            "gap_error_mm": round(metrics.gap_error(out, truth, mask), 2)}
+            "gap_error_mm": round(metrics.gap_error(out, truth, mask), 2),
+            "std_spearman": round(rho, 2), "within_2std": round(within, 3)}
 
 
 def main() -> None:

@@ -348,3 +348,62 @@ def test_a_candidate_scored_on_fewer_gaps_leans_more_on_its_parent():
     every = 2.125                                            # candidate 1 over its 4 gaps
     inside = (2 * 0.25 + 10 * every) / 12                    # 2 gaps scored inside, not 4
     assert torch.isclose(M[0, 1], torch.tensor((2 * 0.25 + 10 * inside) / 12, dtype=torch.float64))
+
+
+def test_a_later_window_reuses_the_first_windows_choice(recording):
+    """A long recording's later windows take the first window's choice (``carry()``): only the
+    candidates with weight are fitted, once, on the real gaps (no hold-out rounds), and the fill
+    stays close to that of a window that chooses for itself; the error estimate covers its gaps."""
+    P = _real(recording, "hdm05_bd_05-01_01_120.c3d", 1600)
+    mask = np.zeros(P.shape[:2], dtype=bool)
+    mask[:800] = gaps.multi_gap(800, P.shape[1], n_markers=10, gap_length=60, seed=1)
+    mask[800:] = gaps.multi_gap(800, P.shape[1], n_markers=10, gap_length=60, seed=2)
+    X = torch.from_numpy(np.where(mask[..., None], np.nan, P))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = get_solver("auto").fit(X[:800])
+        choice = first.carry()["choice"]
+        own = get_solver("auto").fit(X[800:])
+        later = get_solver("auto", choice=choice)
+        stages, fit_all = [], later._fit_all
+
+        def spy(names, fit_missing, stage="fit", case=None):
+            stages.append((stage, list(names)))
+            return fit_all(names, fit_missing, stage, case)
+        later._fit_all = spy
+        later.fit(X[800:])
+    weighted = {n for k in first.weights_.values() for n in k}
+    assert [s for s, _ in stages] == ["refit"] and set(stages[0][1]) == weighted
+    assert later.carry()["choice"] is choice                 # passed on unchanged
+    m = mask[800:]
+    err = {name: rmse_missing(s.transform(X[800:]).numpy(), P[800:], m) for name, s in
+           (("own", own), ("later", later))}
+    assert err["later"] <= 1.25 * err["own"], err
+    std = later.std_.numpy()
+    assert np.isfinite(std[m]).all() and np.isnan(std[~m]).all()
+    np.testing.assert_array_equal(later.transform(X[800:]).numpy()[~m], P[800:][~m])
+
+
+def test_a_later_window_that_would_try_other_candidates_chooses_for_itself():
+    """The first window's choice holds only where a window would try the same candidates: one
+    whose long interior gaps bring in ``tucker_tnn`` (absent from a first window of trial-end
+    gaps) runs its own hold-out."""
+    X = _walk(T=300, J=6)
+    first = X.copy()
+    first[:30, 1] = np.nan                                   # trial-end gaps only
+    first[-25:, 3] = np.nan
+    later = X.copy()
+    later[100:160, 2] = np.nan                               # a long interior gap
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        choice = get_solver("auto").fit(torch.from_numpy(first)).carry()["choice"]
+        assert "tucker_tnn" not in choice["tried"]
+        solver = get_solver("auto", choice=choice)
+        stages, fit_all = [], solver._fit_all
+
+        def spy(names, fit_missing, stage="fit", case=None):
+            stages.append(stage)
+            return fit_all(names, fit_missing, stage, case)
+        solver._fit_all = spy
+        solver.fit(torch.from_numpy(later))
+    assert stages[:2] == ["fit", "draw"] and "tucker_tnn" in solver.scores_

@@ -49,6 +49,14 @@ How (observed data only, never the ground truth of the gaps):
    motion and whether rigid donors fill the sample; fitted on the held-out samples, scaled so that the mean ratio of squared error to
    estimated variance there is 1, and grown in proportion to the motion beyond the 90th percentile
    of the hold-out's motion (which the fit cannot see).
+6. A long recording's later windows (:mod:`torchfill.windows`) take the first window's choice
+   (:meth:`Auto.carry`, the ``choice`` parameter): the candidates with weight, their weights per
+   gap kind, their own carries and the error model. Each window fits only those candidates,
+   once, on its real gaps -- one round of fits instead of three or more -- and its gaps get their
+   kinds from the window itself (kinds the first window did not hold out have their parents'
+   weights, see :func:`kind_mse`). A window that would try other candidates (``tucker_tnn``
+   where long interior gaps hold a quarter of its missing samples and did not in the first
+   window, or the reverse) chooses for itself.
 
 References
 ----------
@@ -462,6 +470,11 @@ class Auto(Solver):
                            "26 trial-end cases the mean ratio to the error alone 0.914 -> 0.876, "
                            "cases worse than 1.05x alone 8 -> 5; it needs a training recording "
                            "as long as the recording, and costs about one more round of fits)"),
+        "choice": Param(None, dict, allow_none=True,
+                        doc="an earlier window's choice of the same recording (its carry(): "
+                            "candidates, weights per gap kind, error model): only the candidates "
+                            "that carry weight are fitted, on the real gaps, with no hold-out "
+                            "(a window that would try other candidates chooses for itself)"),
         "keep_ratio": Param(1.5, float, low=1.0,
                             doc="average: candidates within this factor of the best held-out MSE "
                                 "(1.5: of 1.3/1.5/1.7/2 on scripts/eval_auto.py, 2 and 1.7 let a "
@@ -513,6 +526,7 @@ class Auto(Solver):
         self.carried_: dict[str, dict] = {}
         self.cross_scores_: dict[str, float] = {}
         self.cross_window_: tuple[int, int] | None = None
+        self.error_model_: tuple | None = None
 
     def _estimate(self) -> Tensor:
         return self.X_
@@ -521,16 +535,29 @@ class Auto(Solver):
         seen = self.Omega_.reshape(self.M_.shape[0], self.M_.shape[1], -1).all(dim=2)
         if bool(seen.all()):
             return {"delta": 0.0}
+        if self.choice is not None and set(self.candidate_names()) == set(self.choice["tried"]):
+            V = torch.zeros_like(seen)
+            names, fills, donor, W, mse = self._chosen(~seen)
+        else:
+            names, fills, donor, W, mse, V = self._choose(seen)
+        self._combine(names, fills, donor, W, mse, V, seen)
+        return {"delta": 0.0, "candidates": float(len(names))}
+
+    def _choose(self, seen: Tensor) -> tuple[list[str], Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """Steps 1-4 of the module notes: the hold-out ``V``, every candidate fitted with it
+        hidden and scored per gap kind, the weights ``W`` (n_kinds, C), and (``refit``) the
+        candidates with weight on a real gap refitted there. Returns the candidates' names, their
+        fills (C, T, J, D: of ``V`` from the hold-out fits, of the real gaps from the refits),
+        the (T, J) samples rigid donors fill, ``W``, each candidate's mean held-out squared
+        error (C,) and ``V``."""
         V = self._holdout(seen)
         fit_missing = ~seen | V
         names, fills = self._run_candidates(fit_missing)
         fills, donor = self._constrain(fills, fit_missing)         # donor: rigid-donor samples
-        d, L, edge = run_geometry(fit_missing)
+        _, L, edge = run_geometry(fit_missing)
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
-        motion = gap_motion(fit_missing, Xt)
-        base = gap_kind(L, edge, motion > FAST)
-        n_base = 4 * (len(LENGTH_EDGES) + 1)
-        n_kinds = 2 * n_base                        # x whether a partial candidate fills it
+        base = gap_kind(L, edge, gap_motion(fit_missing, Xt) > FAST)
+        n_base, n_kinds = self._n_kinds()
         kinds = base + n_base * self._partial(names, fills)
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
@@ -555,12 +582,29 @@ class Auto(Solver):
         else:
             W = kind_weights(e_all, k_all, g_all, n_kinds, combine=self.combine,
                              keep_ratio=self.keep_ratio, allowed=allowed, partial_from=n_base)
-        w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         if self.refit and bool(V.any()):
+            w = W[kinds].permute(2, 0, 1)                           # (C, T, J)
             fills, real_donor = self._refit(names, fills, w, ~seen)
             donor = torch.where(V, donor, real_donor)
-            kinds = torch.where(V, kinds, base + n_base * self._partial(names, fills))
-            w = W[kinds].permute(2, 0, 1)
+        self.scores_ = {n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
+        mse = (torch.nan_to_num(err2.nanmean(dim=1), nan=torch.inf) if err2.numel()
+               else torch.ones(len(names), dtype=fills.dtype, device=fills.device))
+        return names, fills, donor, W, mse, V
+
+    def _combine(self, names: list[str], fills: Tensor, donor: Tensor, W: Tensor, mse: Tensor,
+                 V: Tensor, seen: Tensor) -> None:
+        """Step 5 of the module notes and the weighted average: the fills (C, T, J, D) of the
+        real gaps and of ``V``, through the post-step, combined by the weights ``W`` of each
+        sample's gap kind and :func:`consensus`; ``X_``, ``std_``, ``anchored_``, ``weights_``
+        and ``choice_`` set. ``donor`` (T, J): the samples rigid donors fill; ``mse`` (C,): each
+        candidate's held-out mean squared error (weights of the candidates' spread)."""
+        fit_missing = ~seen | V
+        Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
+        d, L, edge = run_geometry(fit_missing)
+        motion = gap_motion(fit_missing, Xt)
+        n_base, n_kinds = self._n_kinds()
+        kinds = gap_kind(L, edge, motion > FAST) + n_base * self._partial(names, fills)
+        w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
         w = w / w.sum(dim=0, keepdim=True).clamp(min=1e-300)
         for part in (~seen, V):                   # real and held-out gaps alike, each on its own
@@ -570,7 +614,7 @@ class Auto(Solver):
         mean = (w[..., None] * torch.nan_to_num(fills)).sum(dim=0)
         mean = self._join_holes(mean, fills, w, partial, fit_missing)
         fills = torch.where(torch.isfinite(fills), fills, mean)     # no say where it has none
-        spread2 = self._spread2(fills, mean, err2)
+        spread2 = self._spread2(fills, mean, mse)
         share = fit_missing.to(fills.dtype).mean(dim=1, keepdim=True).expand_as(spread2)
         lin = ops.interp_linear(Xt.reshape(Xt.shape[0], -1),                # V hidden too
                                 (~fit_missing[..., None]).expand_as(Xt).reshape(Xt.shape[0], -1)
@@ -579,7 +623,6 @@ class Auto(Solver):
         step = torch.diff(Xt, dim=0).pow(2).mean(dim=2)
         both = ~fit_missing[1:] & ~fit_missing[:-1]
         speed2 = self._speed2(step, both).expand_as(spread2)
-        self.scores_ = {n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
         self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
                          for k in range(n_kinds)}
         segment = kinds >= n_base                   # a partial (segment) candidate fills it
@@ -588,7 +631,55 @@ class Auto(Solver):
                       ((mean - Xt) ** 2).mean(dim=2))
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)
-        return {"delta": 0.0, "candidates": float(len(names))}
+        self.choice_ = {"tried": self.candidate_names(), "names": list(names),
+                        "weights": W.tolist(), "mse": mse.tolist(),
+                        "error_model": self.error_model_, "carried": dict(self.carried_),
+                        "scores": dict(self.scores_)}
+
+    def _chosen(self, gaps: Tensor) -> tuple[list[str], Tensor, Tensor, Tensor, Tensor]:
+        """An earlier window's choice (``choice``, see :meth:`carry`): the candidates that carry
+        weight in some gap kind, fitted on all observed samples (each with the carry of its
+        earlier fit), through the post-step. Returns their names, fills (C, T, J, D), the
+        samples rigid donors fill, their weights (n_kinds, C) and held-out mean squared errors
+        (C,). A kind left without weight by a candidate that fails here takes the candidate
+        with the smallest held-out error among those allowed there."""
+        c = self.choice
+        W = torch.tensor(c["weights"], dtype=self.M_.dtype, device=self.M_.device)
+        mse = torch.tensor(c["mse"], dtype=self.M_.dtype, device=self.M_.device)
+        self.carried_ = {k: dict(v) for k, v in c["carried"].items()}
+        self.scores_ = dict(c["scores"])
+        self.error_model_ = c["error_model"]
+        use = [i for i, name in enumerate(c["names"]) if bool((W[:, i] > 0).any())]
+        outs = list(self._fit_all([c["names"][i] for i in use], gaps, "refit"))
+        for i, out in zip(list(use), outs):
+            if isinstance(out, Exception):
+                self.dropped_[c["names"][i]] = str(out)
+                use.remove(i)
+        if not use:
+            raise ValueError(f"{self.name}: every chosen candidate failed on this window: "
+                             + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
+        names = [c["names"][i] for i in use]
+        W, mse = W[:, use], mse[use]
+        n_base, _ = self._n_kinds()
+        for k in torch.nonzero(W.sum(dim=1) <= 0).flatten().tolist():
+            ok = [n not in PARTIAL or k >= n_base for n in names]
+            W[k, int(torch.where(torch.tensor(ok, device=W.device), mse, torch.inf).argmin())] = 1.0
+        fills, donor = self._constrain(torch.stack([o for o in outs if not isinstance(o, Exception)]),
+                                       gaps)
+        return names, fills, donor, W, mse
+
+    def carry(self) -> dict:
+        """The choice (candidates, weights per gap kind, error model): the next windows of the
+        same recording fit only the candidates that carry weight, on their real gaps, with no
+        hold-out (bench_long: see docs/speed.md)."""
+        choice = self.choice if self.choice is not None else getattr(self, "choice_", None)
+        return {"choice": choice} if choice is not None else {}
+
+    @staticmethod
+    def _n_kinds() -> tuple[int, int]:
+        """Gap kinds without a partial candidate, and all (x whether one fills the sample)."""
+        n_base = 4 * (len(LENGTH_EDGES) + 1)
+        return n_base, 2 * n_base
 
     # -- pieces ----------------------------------------------------------------------------
     @staticmethod
@@ -862,13 +953,10 @@ class Auto(Solver):
         return speed2
 
     @staticmethod
-    def _spread2(fills: Tensor, mean: Tensor, err2: Tensor) -> Tensor:
+    def _spread2(fills: Tensor, mean: Tensor, mse: Tensor) -> Tensor:
         """(T, J) disagreement of all candidates with the combined fill, each weighted by its
-        inverse held-out MSE (so a poor candidate counts little)."""
-        if err2.numel():
-            v = 1.0 / torch.nan_to_num(err2.nanmean(dim=1), nan=torch.inf).clamp(min=1e-12)
-        else:
-            v = torch.ones(fills.shape[0], dtype=fills.dtype, device=fills.device)
+        inverse held-out mean squared error ``mse`` (C,) (so a poor candidate counts little)."""
+        v = 1.0 / mse.clamp(min=1e-12)
         v = (v / v.sum())[:, None, None, None]
         return (v * (fills - mean) ** 2).sum(dim=0).mean(dim=2)
 
@@ -880,13 +968,18 @@ class Auto(Solver):
                                spread2, bend2, speed2, motion, donor)
         if int(V.sum()) >= 10:
             beta, log_scale = fit_error_model(F_all[V], e2[V])
+            high = float(torch.quantile(motion[V], 0.9).clamp(min=1e-12))
+            self.error_model_ = (beta.tolist(), log_scale, high)
+        elif self.choice is None:
+            self.error_model_ = None
+        if self.error_model_ is not None:         # fitted here, or an earlier window's
+            beta, log_scale, high = self.error_model_
+            beta = torch.tensor(beta, dtype=F_all.dtype, device=F_all.device)
             var = torch.exp(F_all[gaps] @ beta + log_scale)
             # beyond the motion the hold-out saw, the error grows with the motion (not fitted)
-            high = torch.quantile(motion[V], 0.9).clamp(min=1e-12)
             var = var * (motion[gaps] / high).clamp(min=1.0)
         else:                                            # no hold-out: spread of the candidates
             var = spread2[gaps] + 1e-8
         std = torch.full_like(spread2, float("nan"))
         std[gaps] = var.sqrt() * self.sigma_
         self.std_ = std
-        self.error_model_ = None if int(V.sum()) < 10 else (beta, log_scale)
