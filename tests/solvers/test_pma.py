@@ -228,17 +228,20 @@ def test_lstsq_is_the_minimum_norm_solution_on_collinear_predictors():
 
 
 @pytest.mark.skipif(not (DATA / "hdm05_bd_05-01_01_120.c3d").exists(), reason="needs ../shared/data")
-def test_pca_gloersen_fits_float32_data_as_float64():
-    """A float32 tensor (an ML user's) fits as float64 does: the Gram matrix's eigh ran in
+@pytest.mark.parametrize("method", ["pca_gloersen", "pma"])
+def test_float32_data_fit_as_float64(method):
+    """A float32 tensor (an ML user's) fits as float64 does. The Gram matrix's eigh ran in
     float32 and failed to converge on this recording (5920 frames; its first 4448 at one
-    thread), and ``auto`` dropped pma and pca_gloersen without a word."""
+    thread), and ``auto`` dropped pma and pca_gloersen without a word; pma's model weights fell
+    below float32's range (a 1e-200 floor that is 0 there), 0 / 0 put NaN into the next marker's
+    regression and MKL's gelsd raised."""
     from torchfill import gaps as sim
     from torchfill.solvers import get_solver
     P = torchfill.read(DATA / "hdm05_bd_05-01_01_120.c3d").points
     P = P[:, np.isfinite(P).all(axis=(0, 2))]
     mask = sim.multi_gap(*P.shape[:2], n_markers=20, gap_length=150, seed=0)
     X = torch.from_numpy(np.where(mask[..., None], np.nan, P))
-    out = {dt: get_solver("pca_gloersen").fit_transform(X.to(dt), torch.from_numpy(mask)).double()
+    out = {dt: get_solver(method).fit_transform(X.to(dt), torch.from_numpy(mask)).double()
            for dt in (torch.float32, torch.float64)}
     e32, e64 = (metrics.rmse_missing(out[dt].numpy(), P, mask) for dt in out)
     assert e32 <= 1.05 * e64 + 0.1, (e32, e64)

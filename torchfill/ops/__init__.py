@@ -10,13 +10,13 @@ Plain functions of torch tensors (device and dtype follow the input); nothing he
 another torchfill module.
 """
 from .spectral import energy_rank, gram_svd, orthonormalize, soft_threshold, svt, thin_side
-from .tensor import (cp_to_tensor, fold, hosvd, khatri_rao, mode_dot, mttkrp, multi_mode_dot,
+from .tensor import (clamp_tiny, cp_to_tensor, fold, hosvd, khatri_rao, mode_dot, mttkrp, multi_mode_dot,
                      tucker_to_tensor, unfold)
 from .threads import thread_map
 from .time import (difference, difference_adjoint, difference_gram, interp_linear,
                    interp_relative, runs)
 
-__all__ = ["cp_to_tensor", "difference", "difference_adjoint", "difference_gram", "energy_rank",
+__all__ = ["clamp_tiny", "cp_to_tensor", "difference", "difference_adjoint", "difference_gram", "energy_rank",
            "fold", "gram_svd", "hosvd", "interp_linear", "interp_relative", "khatri_rao",
            "mode_dot", "mttkrp", "multi_mode_dot", "orthonormalize", "runs", "soft_threshold",
            "svt", "thin_side", "thread_map", "tucker_to_tensor", "unfold"]

@@ -98,3 +98,9 @@ def hosvd(X: Tensor, rank: Sequence[int]) -> tuple[Tensor, list[Tensor]]:
     A = [torch.linalg.svd(unfold(X, n), full_matrices=False).U[:, :R].contiguous()
          for n, R in enumerate(rank)]
     return multi_mode_dot(X, A, transpose=True), A
+
+
+def clamp_tiny(x: Tensor, floor: float = 1e-300) -> Tensor:
+    """``x`` clamped to at least ``floor``, or to the dtype's smallest normal number where
+    ``floor`` is below that (1e-300 is 0 in float32: a division by it gives inf or NaN)."""
+    return x.clamp(min=max(floor, torch.finfo(x.dtype).tiny))

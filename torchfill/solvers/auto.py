@@ -337,7 +337,7 @@ def mse_weights(m: Tensor, *, combine: str, keep_ratio: float,
             w = torch.zeros_like(m)
             w[int(m.argmin())] = 1.0
             return w
-        w = torch.where(m <= keep_ratio * m.min(), 1.0 / m.clamp(min=1e-300), 0.0)
+        w = torch.where(m <= keep_ratio * m.min(), 1.0 / ops.clamp_tiny(m), 0.0)
         return w / w.sum()
 
     if allowed is None:
@@ -369,7 +369,7 @@ def consensus(w: Tensor, fills: Tensor, missing: Tensor) -> Tensor:
         dev = ((((F[:, a:b, j] - mean) ** 2).sum(dim=-1) * has).sum(dim=1)
                / has.sum(dim=1).clamp(min=1)).sqrt()
         nw = ww / (1.0 + dev / dev[on].median().clamp(min=1e-12))[:, None]
-        out[:, a:b, j] = nw / nw.sum(dim=0, keepdim=True).clamp(min=1e-300)
+        out[:, a:b, j] = nw / ops.clamp_tiny(nw.sum(dim=0, keepdim=True))
     return out
 
 
@@ -606,7 +606,7 @@ class Auto(Solver):
         kinds = gap_kind(L, edge, motion > FAST) + n_base * self._partial(names, fills)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
-        w = w / w.sum(dim=0, keepdim=True).clamp(min=1e-300)
+        w = w / ops.clamp_tiny(w.sum(dim=0, keepdim=True))
         for part in (~seen, V):                   # real and held-out gaps alike, each on its own
             w = consensus(w, fills, part)
         partial = torch.tensor([n in PARTIAL for n in names], device=w.device)

@@ -324,7 +324,7 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
     w = torch.ones(L, m, dtype=Ps.dtype, device=Ps.device)
     for Q, s in zip(local.raw, local.samples):
         w = w * kde(s, torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
-    w = symfilter(w.clamp(min=1e-200), min(window, (L + 1) // 2))
+    w = symfilter(ops.clamp_tiny(w, 1e-200), min(window, (L + 1) // 2))     # > 0 in float32 too
     return (w[..., None] * Ps).sum(1) / w.sum(1)[:, None]
 
 
