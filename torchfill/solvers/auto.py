@@ -586,7 +586,8 @@ class Auto(Solver):
             w = W[kinds].permute(2, 0, 1)                           # (C, T, J)
             fills, real_donor = self._refit(names, fills, w, ~seen)
             donor = torch.where(V, donor, real_donor)
-        self.scores_ = {n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)} if err2.numel() else {}
+        self.scores_ = ({n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)}
+                        if err2.numel() else {})
         mse = (torch.nan_to_num(err2.nanmean(dim=1), nan=torch.inf) if err2.numel()
                else torch.ones(len(names), dtype=fills.dtype, device=fills.device))
         return names, fills, donor, W, mse, V
@@ -664,8 +665,8 @@ class Auto(Solver):
         for k in torch.nonzero(W.sum(dim=1) <= 0).flatten().tolist():
             ok = [n not in PARTIAL or k >= n_base for n in names]
             W[k, int(torch.where(torch.tensor(ok, device=W.device), mse, torch.inf).argmin())] = 1.0
-        fills, donor = self._constrain(torch.stack([o for o in outs if not isinstance(o, Exception)]),
-                                       gaps)
+        fitted = torch.stack([out for out in outs if not isinstance(out, Exception)])
+        fills, donor = self._constrain(fitted, gaps)
         return names, fills, donor, W, mse
 
     def carry(self) -> dict:
