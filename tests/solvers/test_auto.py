@@ -171,6 +171,11 @@ def test_consensus_weighs_down_the_candidate_that_strays_on_its_gap():
     torch.testing.assert_close(out[:, :2], w[:, :2])                      # observed: as given
 
 
+def test_a_choice_that_is_not_a_carry_is_an_error():
+    with pytest.raises(ValueError, match="choice expected an earlier fit's carry"):
+        get_solver("auto", choice={"weights": [[1.0]]})
+
+
 def test_unknown_candidate_is_an_error():
     with pytest.raises(ValueError, match="candidates expected"):
         get_solver("auto", candidates=["pchip", "not_a_method"])

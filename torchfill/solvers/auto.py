@@ -139,6 +139,8 @@ FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 #: (scripts/bench_session.py, the trials cut to 200 frames in the pool then, so without the
 #: cross-trial hold-out); the session suite's trial-end mean ratio moved 0.925 -> 0.914.
 NOT_DRAWN = RuntimeError("not fitted in this draw")
+#: What a fit's choice holds (:meth:`Auto.carry`, the ``choice`` parameter).
+CHOICE_KEYS = frozenset({"tried", "names", "weights", "mse", "error_model", "carried", "scores"})
 #: Most hold-out draws that ``min_gaps`` asks for.
 MAX_DRAWS = 4
 #: Gap-length bucket edges in frames (a gap's kind: trial end or not x length bucket).
@@ -494,6 +496,10 @@ class Auto(Solver):
             if not isinstance(p, dict):
                 raise ValueError(f"{self.name}: candidate_params expected {{name: dict}}, "
                                  f"found {name!r}: {p!r}")
+        lacking = CHOICE_KEYS - set(self.choice or CHOICE_KEYS)
+        if lacking:
+            raise ValueError(f"{self.name}: choice expected an earlier fit's carry()['choice'], "
+                             f"found a dict without {sorted(lacking)}")
 
     def candidate_names(self) -> list[str]:
         if self.candidates is not None:
