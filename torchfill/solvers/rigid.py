@@ -530,7 +530,9 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     seen = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
     seen = seen & np.isfinite(X).all(axis=2)
     m, s = _frame_of(X, seen)
-    Xc = np.where(seen[..., None], (X - m) / s, np.nan)
+    Xc = X - m                      # in place from here: long recordings hold fewer full copies
+    Xc /= s
+    Xc[~seen] = np.nan
     segs = index_segments(segments, labels, Xc, seen)
     key = _fingerprint(Xc, seen, segs, min_mates)
     with _CACHE_LOCK:
@@ -543,10 +545,12 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
                 while len(_CACHE) > CACHE_ENTRIES:
                     _CACHE.popitem(last=False)
     est, std, seg_of, bridged = hit
+    out = est * s
+    out += m
     if bridge:
-        return est * s + m, std * s, seg_of.copy(), bridged.copy()
-    return (np.where(bridged[..., None], np.nan, est) * s + m, np.where(bridged, np.nan, std) * s,
-            np.where(bridged, -1, seg_of))
+        return out, std * s, seg_of.copy(), bridged.copy()
+    out[bridged] = np.nan
+    return out, np.where(bridged, np.nan, std) * s, np.where(bridged, -1, seg_of)
 
 
 #: :func:`segment_fill` keeps its last results for this many recordings and masks (each at most
@@ -681,8 +685,9 @@ def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None,
         run = np.cumsum(np.diff(np.r_[0, ~seen[:, j]].astype(int)) == 1) * ~seen[:, j]
         bad = np.unique(run[done[:, j] & ~good[:, j]])  # edge inside a gap is worse than none
         done[np.isin(run, bad[bad > 0]), j] = False
-    out = np.where(seen[..., None], Xn, np.nan)
-    out[done] = est[done]
+    out = est                       # segment_fill's own array: NaN at observed samples
+    out[~done] = np.nan
+    np.copyto(out, Xn, where=seen[..., None])
     _fill_duplicates(out, done, Xn, seen, pairs)
     return torch.from_numpy(out), torch.from_numpy(done)
 
