@@ -155,6 +155,10 @@ FAST = 3.0
 PRIOR_GAPS = 10.0
 #: Window starts tried for the cross-trial hold-out (:func:`motion_match`), every this many frames.
 MATCH_STRIDE = 10
+#: Gap kinds without a partial candidate (see :func:`gap_kind`), and all of them: a sample a
+#: partial candidate fills has the kind ``N_BASE`` higher.
+N_BASE = 4 * (len(LENGTH_EDGES) + 1)
+N_KINDS = 2 * N_BASE
 
 def interior_share(Omega: Tensor) -> float:
     """Share of the missing samples (a sample: any coordinate of a marker in a frame) that lie in
@@ -202,8 +206,7 @@ def gap_kind(L: Tensor, edge: Tensor, fast: Tensor) -> Tensor:
 
 
 def kind_name(k: int) -> str:
-    n_base = 4 * (len(LENGTH_EDGES) + 1)
-    partial, k = divmod(k, n_base)
+    partial, k = divmod(k, N_BASE)
     length = (LENGTH_EDGES + ("inf",))[k // 4]
     return (f"{'end' if k % 2 else 'inner'}{',fast' if k // 2 % 2 else ''}<={length}"
             f"{',segment' if partial else ''}")
@@ -560,11 +563,8 @@ class Auto(Solver):
         fit_missing = ~seen | V
         names, fills = self._run_candidates(fit_missing)
         fills, donor = self._constrain(fills, fit_missing)         # donor: rigid-donor samples
-        _, L, edge = run_geometry(fit_missing)
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
-        base = gap_kind(L, edge, gap_motion(fit_missing, Xt) > FAST)
-        n_base, n_kinds = self._n_kinds()
-        kinds = base + n_base * self._partial(names, fills)
+        kinds = self._kinds(names, fills, fit_missing, Xt)[-1]
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
         decide = ~donor[V]                      # held-out samples the candidates fill themselves
         pooled = [(err2[:, decide], kinds[V][decide], gap_index(V)[V][decide])]
@@ -574,20 +574,20 @@ class Auto(Solver):
         e_all = torch.cat([p[0] for p in pooled], dim=1)
         k_all = torch.cat([p[1] for p in pooled])
         g_all = torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pooled)])   # apart
-        allowed = torch.ones(n_kinds, len(names), dtype=torch.bool, device=fills.device)
-        allowed[:n_base, [c for c, n in enumerate(names) if n in PARTIAL]] = False
+        allowed = torch.ones(N_KINDS, len(names), dtype=torch.bool, device=fills.device)
+        allowed[:N_BASE, [c for c, n in enumerate(names) if n in PARTIAL]] = False
         cross = self._cross_holdout(names, seen) if self.cross else None
         if e_all.shape[1] == 0:                                     # nothing to choose on
             W = allowed / allowed.sum(dim=1, keepdim=True).to(fills.dtype)
         elif cross is not None:
-            Mo = kind_mse(e_all, k_all, g_all, n_kinds, partial_from=n_base)
-            Mc = kind_mse(*cross, n_kinds, partial_from=n_base)
-            end = (torch.arange(n_kinds, device=Mo.device) % 2 == 1)[:, None]
+            Mo = kind_mse(e_all, k_all, g_all, N_KINDS, partial_from=N_BASE)
+            Mc = kind_mse(*cross, N_KINDS, partial_from=N_BASE)
+            end = (torch.arange(N_KINDS, device=Mo.device) % 2 == 1)[:, None]
             M = torch.where(end & ~torch.isnan(Mc), (Mo * Mc).sqrt(), Mo)
             W = mse_weights(M, combine=self.combine, keep_ratio=self.keep_ratio, allowed=allowed)
         else:
-            W = kind_weights(e_all, k_all, g_all, n_kinds, combine=self.combine,
-                             keep_ratio=self.keep_ratio, allowed=allowed, partial_from=n_base)
+            W = kind_weights(e_all, k_all, g_all, N_KINDS, combine=self.combine,
+                             keep_ratio=self.keep_ratio, allowed=allowed, partial_from=N_BASE)
         if self.refit and bool(V.any()):
             w = W[kinds].permute(2, 0, 1)                           # (C, T, J)
             fills, real_donor = self._refit(names, fills, w, ~seen)
@@ -607,10 +607,7 @@ class Auto(Solver):
         candidate's held-out mean squared error (weights of the candidates' spread)."""
         fit_missing = ~seen | V
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
-        d, L, edge = run_geometry(fit_missing)
-        motion = gap_motion(fit_missing, Xt)
-        n_base, n_kinds = self._n_kinds()
-        kinds = gap_kind(L, edge, motion > FAST) + n_base * self._partial(names, fills)
+        d, L, edge, motion, kinds = self._kinds(names, fills, fit_missing, Xt)
         w = W[kinds].permute(2, 0, 1)                               # (C, T, J)
         w = torch.where(torch.isfinite(fills).all(dim=-1), w, 0.0)  # a partial fill's NaN
         w = w / ops.clamp_tiny(w.sum(dim=0, keepdim=True))
@@ -631,8 +628,8 @@ class Auto(Solver):
         both = ~fit_missing[1:] & ~fit_missing[:-1]
         speed2 = self._speed2(step, both).expand_as(spread2)
         self.weights_ = {kind_name(k): {n: round(float(x), 4) for n, x in zip(names, W[k]) if x > 0}
-                         for k in range(n_kinds)}
-        segment = kinds >= n_base                   # a partial (segment) candidate fills it
+                         for k in range(N_KINDS)}
+        segment = kinds >= N_BASE                   # a partial (segment) candidate fills it
         self._fit_std(V, seen, (d, L, edge, share, spread2, bend2, speed2, motion,
                                 donor | segment),
                       ((mean - Xt) ** 2).mean(dim=2))
@@ -656,7 +653,7 @@ class Auto(Solver):
         self.carried_ = {k: dict(v) for k, v in c["carried"].items()}
         self.scores_ = dict(c["scores"])
         self.error_model_ = c["error_model"]
-        use = [i for i, name in enumerate(c["names"]) if bool((W[:, i] > 0).any())]
+        use = [i for i in range(len(c["names"])) if bool((W[:, i] > 0).any())]
         outs = list(self._fit_all([c["names"][i] for i in use], gaps, "refit"))
         for i, out in zip(list(use), outs):
             if isinstance(out, Exception):
@@ -667,9 +664,8 @@ class Auto(Solver):
                              + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
         names = [c["names"][i] for i in use]
         W, mse = W[:, use], mse[use]
-        n_base, _ = self._n_kinds()
         for k in torch.nonzero(W.sum(dim=1) <= 0).flatten().tolist():
-            ok = [n not in PARTIAL or k >= n_base for n in names]
+            ok = [n not in PARTIAL or k >= N_BASE for n in names]
             W[k, int(torch.where(torch.tensor(ok, device=W.device), mse, torch.inf).argmin())] = 1.0
         fitted = torch.stack([out for out in outs if not isinstance(out, Exception)])
         fills, donor = self._constrain(fitted, gaps)
@@ -682,11 +678,16 @@ class Auto(Solver):
         choice = self.choice if self.choice is not None else getattr(self, "choice_", None)
         return {"choice": choice} if choice is not None else {}
 
-    @staticmethod
-    def _n_kinds() -> tuple[int, int]:
-        """Gap kinds without a partial candidate, and all (x whether one fills the sample)."""
-        n_base = 4 * (len(LENGTH_EDGES) + 1)
-        return n_base, 2 * n_base
+    def _kinds(self, names: list[str], fills: Tensor, missing: Tensor, Xt: Tensor
+               ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """Per sample of ``missing`` (T, J) in ``Xt`` (T, J, D): its distance, gap length and
+        trial end (:func:`run_geometry`), its gap's frame motion (:func:`gap_motion`) and its
+        kind (:func:`gap_kind`, ``N_BASE`` higher where a partial candidate of ``fills`` fills
+        it)."""
+        d, L, edge = run_geometry(missing)
+        motion = gap_motion(missing, Xt)
+        kinds = gap_kind(L, edge, motion > FAST) + N_BASE * self._partial(names, fills)
+        return d, L, edge, motion, kinds
 
     # -- pieces ----------------------------------------------------------------------------
     @staticmethod
@@ -757,10 +758,7 @@ class Auto(Solver):
                 fills[c] = out
         ok = [c for c in range(C) if bool(torch.isfinite(fills[c]).any())]
         fills[ok], donor = self._constrain(fills[ok], missing)
-        _, L, edge = run_geometry(missing)
-        n_base = 4 * (len(LENGTH_EDGES) + 1)
-        kinds = gap_kind(L, edge, gap_motion(missing, Xt) > FAST)
-        kinds = kinds + n_base * self._partial(names, fills)
+        kinds = self._kinds(names, fills, missing, Xt)[-1]
         err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
         decide = ~donor[V]
         return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
