@@ -204,7 +204,7 @@ def rigid_donors(filled, observed: np.ndarray, pairs: RigidPairs | None = None, 
     (NaN where no donors) and the (T, J) samples it fills. The donors are segment-mates
     (:func:`torchfill.solvers.rigid.rigid_fill`): ``segments`` as ``fill()`` resolved them (name
     -> marker indices), else the name tables when ``names`` fit them, else found from the data."""
-    X = np.where(observed[..., None], np.asarray(filled, dtype=np.float64), np.nan)
+    X = np.asarray(filled, dtype=np.float64)   # only its observed samples are read: no copy
     if segments is None:
         segments = "auto" if names is not None else "data"
     R, done = rigid_fill(X, observed, pairs, segments, names)

@@ -9,6 +9,7 @@ import torch
 import torchfill
 from torchfill import metrics
 from torchfill.segments import Segments
+from torchfill.solvers import rigid
 from torchfill.solvers.rigid import (_carry_few, _upper_nanquantile, kabsch, rigid_fill,
                                      rigid_pairs, segment_fill)
 
@@ -117,6 +118,32 @@ def test_segment_fill_is_exact_on_rigid_segments_and_extrapolates():
     assert np.array_equal(out.numpy()[seen], X[seen])
     filled = torchfill.fill(X, "rigid", segments=segments, constraints=False)
     np.testing.assert_allclose(filled[done], truth[done], atol=1e-8)
+
+
+def test_segment_fill_kept_or_not_gives_the_same_bits_and_callers_cannot_change_the_kept(
+        monkeypatch):
+    """A result small enough is kept and handed out as copies; a larger one is rescaled in place
+    (long recordings): the same bits either way, and a caller writing into its result (as
+    rigid_fill does) changes no later answer."""
+    X = _segment_motion()
+    X[100:160, 0] = np.nan
+    X[250:, 5] = np.nan
+    X[120:130, 1] = np.nan                # a hole in a mate inside the gap: a bridged stretch
+    segments = {"a": [0, 1, 2, 3], "b": [4, 5, 6, 7]}
+    rigid.clear_cache()
+    first = segment_fill(X, None, segments, bridge=True)
+    for a in first:
+        a[...] = 0                        # a caller's writes
+    kept = segment_fill(X, None, segments, bridge=True)
+    plain = segment_fill(X, None, segments)
+    monkeypatch.setattr(rigid, "CACHE_BYTES", 0)      # too large to keep: rescaled in place
+    rigid.clear_cache()
+    fresh = segment_fill(X, None, segments, bridge=True)
+    fresh_plain = segment_fill(X, None, segments)
+    for a, b in zip(kept + plain, fresh + fresh_plain):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert kept[3].any() and np.isnan(plain[0][kept[3]]).all()    # bridged: out without bridge
+    assert (plain[2][kept[3]] == -1).all() and np.isfinite(kept[0][kept[3]]).all()
 
 
 def test_fewer_than_three_mates_is_left_to_other_models_and_the_method_says_so():

@@ -537,20 +537,24 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     key = _fingerprint(Xc, seen, segs, min_mates)
     with _CACHE_LOCK:
         hit = _CACHE.get(key)
+    kept = hit is not None or Xc.nbytes <= CACHE_BYTES
     if hit is None:
         hit = _segment_fill(Xc, seen, segs, min_mates)
-        if Xc.nbytes <= CACHE_BYTES:
+        if kept:
             with _CACHE_LOCK:
                 _CACHE[key] = hit
                 while len(_CACHE) > CACHE_ENTRIES:
                     _CACHE.popitem(last=False)
-    est, std, seg_of, bridged = hit
-    out = est * s
-    out += m
-    if bridge:
-        return out, std * s, seg_of.copy(), bridged.copy()
-    out[bridged] = np.nan
-    return out, np.where(bridged, np.nan, std) * s, np.where(bridged, -1, seg_of)
+    del Xc
+    est, std, seg_of, bridged = (a.copy() for a in hit) if kept else hit   # a kept one unchanged
+    est *= s                        # in place: long recordings hold fewer full-length copies
+    est += m
+    std *= s
+    if not bridge:
+        est[bridged] = np.nan
+        std[bridged] = np.nan
+        seg_of[bridged] = -1
+    return (est, std, seg_of, bridged) if bridge else (est, std, seg_of)
 
 
 #: :func:`segment_fill` keeps its last results for this many recordings and masks (each at most
