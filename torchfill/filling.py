@@ -15,11 +15,14 @@ import torch
 from .constraints import constrain, constrain_candidates, meet_kept
 from .qc import EST_CHECK_MM, alone, per_mm, untested
 from .metrics import gap_runs
+from .ops.cache import clear_all as clear_kept
+from .ops.memory import trim_heap
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
 from .solvers.auto import PARTIAL
 from .solvers.rigid import HOLDOUT_LAGS, body_size, segment_fill
+from .solvers.rigid import clear_cache as clear_rigid_cache
 from .solvers.session import TRAINING_FRAMES, spread_runs
 
 _LOCK = threading.Lock()
@@ -325,11 +328,20 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     stds, anchors = {}, {}
     index = {w: k for k, w in enumerate(plan.windows)}
     case.shown = shown = _progress(progress, windows=len(index), method=method)
+
+    def one(a: int, b: int) -> torch.Tensor:
+        part = _fill_window(method, params, extra, Xk[a:b], unfit[a:b, keep], shown, case.info,
+                            stds, (a, b), constraints, return_std, index[a, b] + 1, len(index),
+                            solve, keep, anchors)
+        if len(index) > 1:              # the next window is other data: what this one kept
+            clear_kept()                # for a repeat, and its freed temporaries, go back
+            clear_rigid_cache()
+            trim_heap()
+        return part
+
     try:
-        filled = windows.blend(plan, unfit[:, keep], lambda a, b: _fill_window(
-            method, params, extra, Xk[a:b], unfit[a:b, keep], shown, case.info, stds,
-            (a, b), constraints, return_std, index[a, b] + 1, len(index), solve, keep, anchors),
-            workers=1 if Xk.device.type != "cpu" else workers)
+        filled = windows.blend(plan, unfit[:, keep], one,
+                               workers=1 if Xk.device.type != "cpu" else workers)
     except BaseException:
         shown.close()                           # no half-drawn bar before the error line
         raise
@@ -358,6 +370,7 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     out, todo, data, info, std = case.out, case.todo, case.data, case.info, case.std
     if constraints and bool(todo.any()):
         case.shown.post_step()
+        trim_heap()                     # the fits' freed temporaries, before the largest step
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
                                               case.seg_idx, case.solver.spatial,
                                               case.anchored)

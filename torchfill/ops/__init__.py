@@ -5,7 +5,8 @@
 * :mod:`.spectral` -- singular value thresholding, the Gram-matrix SVD, energy rank, soft threshold;
 * :mod:`.time` -- interpolation starts, temporal difference operators, run-lengths of masks;
 * :mod:`.threads` -- independent pieces of work in threads that share torch's threads out.
-* :mod:`.cache` -- results kept by a fingerprint of their inputs (a repeat is a lookup).
+* :mod:`.cache` -- results kept by a fingerprint of their inputs (a repeat is a lookup);
+* :mod:`.memory` -- the heap's free pages handed back to the system between a fill's stages.
 
 Plain functions of torch tensors (device and dtype follow the input); nothing here imports
 another torchfill module.

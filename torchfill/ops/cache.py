@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
@@ -54,6 +55,7 @@ class Memo:
     in all; thread-safe (two threads may both compute a missing entry: the same result)."""
 
     def __init__(self, entries: int, max_bytes: int = 64 << 20) -> None:
+        _ALL.add(self)
         self.entries, self.max_bytes = entries, max_bytes
         self._kept: OrderedDict[bytes, tuple[Any, int]] = OrderedDict()
         self._bytes = 0                                  # the kept results' size in all
@@ -84,3 +86,12 @@ class Memo:
         with self._lock:
             self._kept.clear()
             self._bytes = 0
+
+
+_ALL: "weakref.WeakSet[Memo]" = weakref.WeakSet()
+
+
+def clear_all() -> None:
+    """Forget every :class:`Memo`'s results (a long recording's next window is other data)."""
+    for memo in list(_ALL):
+        memo.clear()
