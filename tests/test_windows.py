@@ -80,6 +80,35 @@ def test_windows_in_threads_blend_in_order_whatever_finishes_first(monkeypatch):
     assert torch.equal(threaded, serial)
 
 
+def test_blend_emits_each_frame_once_in_order_as_soon_as_final():
+    """A long recording's blend is handed on in pieces, never whole: each piece ends where the
+    next window starts (no later window reaches it), and together they are the whole blend's
+    bits."""
+    X = _long_walk()
+    mask = gaps.multi_gap(*X.shape[:2], n_markers=5, gap_length=60, max_gaps=5, seed=2)
+    given = np.where(mask[..., None], np.nan, X)
+    plan = windows.plan(mask, 400)
+    missing = torch.from_numpy(mask)
+    solved = []
+
+    def solve(a, b):
+        solved.append(a)
+        return torch.from_numpy(torchfill.fill(given[a:b], "linear", window=None))
+    pieces = []
+
+    def emit(a, b, values):               # right after a window: up to the next one's start
+        k = len(solved)
+        assert b == (plan.windows[k][0] if k < len(plan.windows) else len(X))
+        pieces.append((a, b, values.clone()))
+    assert windows.blend(plan, missing, solve, emit=emit) is None
+    whole = windows.blend(plan, missing, solve)
+    starts = [w[0] for w in plan.windows[1:]]
+    assert [p[:2] for p in pieces] == list(zip([0] + starts, starts + [len(X)]))
+    joined = torch.cat([p[2] for p in pieces])
+    assert torch.equal(joined.nan_to_num(-1.0), whole.nan_to_num(-1.0))
+    assert torch.equal(joined.isnan(), whole.isnan())
+
+
 def test_default_fill_in_window_threads_is_as_accurate_as_the_serial_fill(recording):
     truth = torchfill.read(recording("cmu_85_02.c3d")).points             # 810 frames
     mask = gaps.multi_gap(*truth.shape[:2], n_markers=10, gap_length=20, max_gaps=2, seed=0)

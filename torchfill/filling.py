@@ -320,9 +320,10 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     if case.training is not None:
         extra["training"] = [t.to(case.work or t.dtype) for t in _align_training(
             case.training, case.data, keep.tolist(), case.points.shape[1])]
-    Xk = torch.where(unfit[:, keep, None], torch.nan, case.points[:, keep])
-    Xk = Xk.to(case.work or Xk.dtype)
     case.points = None              # long recordings: hold as few full-length copies as we can
+    out, todo = case.out, case.todo     # out: the input, NaN at ``mask`` (within ``unfit``):
+    whole = len(keep) == out.shape[1]   # the windows read their input from it, and their
+                                        # blended fill is written into it as it comes
     plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
     start = time.perf_counter()
     stds, anchors = {}, {}
@@ -330,23 +331,33 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     case.shown = shown = _progress(progress, windows=len(index), method=method)
 
     def one(a: int, b: int) -> torch.Tensor:
-        part = _fill_window(method, params, extra, Xk[a:b], unfit[a:b, keep], shown, case.info,
-                            stds, (a, b), constraints, return_std, index[a, b] + 1, len(index),
-                            solve, keep, anchors)
+        X = torch.where(unfit[a:b, keep, None], torch.nan, out[a:b, keep])
+        part = _fill_window(method, params, extra, X.to(case.work or X.dtype), unfit[a:b, keep],
+                            shown, case.info, stds, (a, b), constraints, return_std,
+                            index[a, b] + 1, len(index), solve, keep, anchors)
         if len(index) > 1:              # the next window is other data: what this one kept
             clear_kept()                # for a repeat, and its freed temporaries, go back
             clear_rigid_cache()
             trim_heap()
         return part
 
+    def write(a: int, b: int, values: torch.Tensor) -> None:
+        """Blended frames, final: into the missing samples of ``out`` (the windows still
+        running read frames from ``b`` on)."""
+        rows = out[a:b] if whole else out[a:b, keep]
+        new = todo[a:b, keep, None] & ~torch.isfinite(rows)
+        rows[new] = values[new].to(out.dtype)
+        if not whole:
+            out[a:b, keep] = rows
+
     try:
-        filled = windows.blend(plan, unfit[:, keep], one,
-                               workers=1 if Xk.device.type != "cpu" else workers)
+        windows.blend(plan, unfit[:, keep], one, emit=write,
+                      workers=1 if out.device.type != "cpu" else workers)
     except BaseException:
         shown.close()                           # no half-drawn bar before the error line
         raise
     case.info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
-    todo, std, out = case.todo, case.std, case.out
+    std = case.std
     if len(stds) == len(plan.windows):      # every window has an estimate
         part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
         std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
@@ -354,14 +365,6 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
         part = windows.blend(plan, unfit[:, keep], lambda a, b: anchors[a, b][..., None].float())
         case.anchored = torch.zeros_like(todo)
         case.anchored[:, keep] = todo[:, keep] & (part[..., 0] > 0.5)
-    del Xk
-    whole = len(keep) == out.shape[1]
-    part = out if whole else out[:, keep]
-    write = todo[:, keep, None] & ~torch.isfinite(part)
-    part[write] = filled[write].to(out.dtype)
-    del filled
-    if not whole:
-        out[:, keep] = part
 
 
 def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return_std: bool):
@@ -370,7 +373,7 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     out, todo, data, info, std = case.out, case.todo, case.data, case.info, case.std
     if constraints and bool(todo.any()):
         case.shown.post_step()
-        trim_heap()                     # the fits' freed temporaries, before the largest step
+        trim_heap(out.element_size() * out.numel())     # the fits' freed memory goes back
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
                                               case.seg_idx, case.solver.spatial,
                                               case.anchored)

@@ -71,30 +71,51 @@ def plan(missing: np.ndarray, window: int | None = WINDOW) -> Plan:
 
 
 def blend(p: Plan, missing: torch.Tensor, solve: Callable[[int, int], torch.Tensor],
-          workers: int | None = 1) -> torch.Tensor:
+          workers: int | None = 1, emit: Callable[[int, int, torch.Tensor], None] | None = None
+          ) -> torch.Tensor | None:
     """Fill every window with ``solve(start, stop)`` (a ``(stop - start, J, D)`` tensor) and blend
     the fills with :func:`weight` (any number of coordinates), in window order whatever order they
     finish in. NaN where no window fills. The first window is solved alone (what it chooses may
     carry to the others, see :meth:`Solver.carry`) with all of torch's threads, the others
     ``workers`` at a time (None: torch's thread count, also the most) in threads that share
     torch's threads out (its kernels release the GIL); with one worker one window's fill is held
-    at a time."""
+    at a time.
+
+    ``emit(start, stop, values)``, when given, receives the blended frames as soon as no later
+    window reaches them, and nothing is returned: no full-length blend is held (a long
+    recording's fill writes them into its result as they come). Otherwise the whole blend is
+    returned."""
     T, J = missing.shape
-    num = den = None
+    if emit is None:
+        kept = []
+        blend(p, missing, solve, workers, lambda a, b, values: kept.append(values))
+        return kept[0] if len(kept) == 1 else torch.cat(kept)
+    starts = [a for a, _ in p.windows[1:]] + [T]      # frames before the next window's are final
+    lo, num, den = 0, None, None                         # the frames [lo, lo + len(den)) in play
     for k, (a, b), part in _solved(p, solve, workers):
         if len(p.windows) == 1:
-            return part
+            emit(0, T, part)
+            return None
         w = torch.as_tensor(weight(p, k, missing[a:b].cpu().numpy(), T), dtype=part.dtype,
                             device=part.device)
         if num is None:
-            num = torch.zeros((T, J, part.shape[2]), dtype=part.dtype, device=part.device)
-            den = torch.zeros((T, J), dtype=part.dtype, device=part.device)
+            num = part.new_zeros((0, J, part.shape[2]))
+            den = part.new_zeros((0, J))
+        if b > lo + den.shape[0]:
+            grow = b - lo - den.shape[0]
+            num = torch.cat([num, part.new_zeros((grow, J, part.shape[2]))])
+            den = torch.cat([den, part.new_zeros((grow, J))])
         w = torch.where(torch.isfinite(part).all(dim=2), w, 0.0)
-        num[a:b] += w[..., None] * torch.nan_to_num(part)
-        den[a:b] += w
-    num /= den.clamp_min(torch.finfo(den.dtype).tiny)[..., None]          # in place: no more full-length copies
-    num[den == 0] = torch.nan
-    return num
+        num[a - lo:b - lo] += w[..., None] * torch.nan_to_num(part)
+        den[a - lo:b - lo] += w
+        n = starts[k] - lo
+        if n > 0:
+            d = den[:n]
+            done = num[:n] / d.clamp_min(torch.finfo(d.dtype).tiny)[..., None]
+            done[d == 0] = torch.nan
+            emit(lo, starts[k], done)
+            num, den, lo = num[n:].clone(), den[n:].clone(), starts[k]
+    return None
 
 
 def _solved(p: Plan, solve: Callable[[int, int], torch.Tensor], workers: int | None):

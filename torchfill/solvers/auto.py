@@ -72,6 +72,7 @@ from collections.abc import Iterator
 import torch
 
 from .. import ops
+from ..ops.memory import trim_heap
 from .base import Param, Solver, available, get_solver, register
 from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
@@ -881,6 +882,8 @@ class Auto(Solver):
             return self._fit_one(name, fit_missing, case)
         except FAILURES as err:
             return err
+        finally:                        # the fit's solver is gone: its freed memory goes back
+            trim_heap(self.M_.element_size() * self.M_.numel())
 
     def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit",
                  case: tuple | None = None) -> Iterator:
@@ -943,7 +946,9 @@ class Auto(Solver):
             return fills, torch.zeros_like(missing)
         with warnings.catch_warnings():     # the candidates' post-step speaks to no one: the
             warnings.simplefilter("ignore")  # final fill's own post-step warns the user once
-            return post(fills, missing)
+            out = post(fills, missing)
+        trim_heap(self.M_.element_size() * self.M_.numel())
+        return out
 
     @staticmethod
     def _speed2(step: Tensor, both: Tensor) -> Tensor:
