@@ -15,6 +15,9 @@ other, 25 s instead of 15 s at 3 000 frames).
 
     OMP_NUM_THREADS=2 nice python scripts/bench_long.py --frames 3000 12000 36000 120000
     OMP_NUM_THREADS=1 nice python scripts/bench_long.py --frames 12000 --window 600 1200 2400 0
+
+``--device cuda`` hands the fill a torch tensor on that device (the API keeps the device); the
+time then includes the copies to and from it.
 """
 from __future__ import annotations
 
@@ -56,7 +59,8 @@ def recording(frames: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return truth, mask
 
 
-def one(frames: int, method: str | None, window: int | None) -> dict:
+def one(frames: int, method: str | None, window: int | None, device: str | None = None) -> dict:
+    import torch
     import torchfill
     from torchfill import metrics
 
@@ -64,13 +68,17 @@ def one(frames: int, method: str | None, window: int | None) -> dict:
     given = np.where(mask[..., None], np.nan, truth)
     del truth                   # a user's process holds the gapped recording alone: the peak
     start = time.perf_counter()                                 # RSS is the fill's
-    out, std = torchfill.fill(given, method, window=window, return_std=True)
+    if device is None:
+        out, std = torchfill.fill(given, method, window=window, return_std=True)
+    else:
+        out, std = (t.cpu().numpy() for t in torchfill.fill(
+            torch.from_numpy(given).to(device), method, window=window, return_std=True))
     seconds = time.perf_counter() - start
     truth, _ = recording(frames)
     assert np.array_equal(out[~mask], truth[~mask])
     rho, within, _ = std_checks(out, std, truth, mask)
     return {"frames": frames, "method": method or torchfill.default_method(),
-            "window": window, "seconds": round(seconds, 2),
+            "window": window, "device": device or "numpy", "seconds": round(seconds, 2),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
             "rmse_missing_mm": round(metrics.rmse_missing(out, truth, mask), 2),
             "gap_error_mm": round(metrics.gap_error(out, truth, mask), 2),
@@ -83,13 +91,14 @@ def main() -> None:
     parser.add_argument("--window", type=int, nargs="+", default=[-1],
                         help="window lengths (0 = whole recording, -1 = the default)")
     parser.add_argument("--method", default=None)
+    parser.add_argument("--device", default=None, help="e.g. cuda: fill a torch tensor there")
     parser.add_argument("--timeout", type=float, default=900)
     parser.add_argument("--one", nargs=2, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
         from torchfill.windows import WINDOW
         window = {-1: WINDOW, 0: None}.get(args.one[1], args.one[1])
-        print(json.dumps(one(args.one[0], args.method, window)))
+        print(json.dumps(one(args.one[0], args.method, window, args.device)))
         return
     print(subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     for window in args.window:
@@ -97,6 +106,8 @@ def main() -> None:
             cmd = [sys.executable, __file__, "--one", str(frames), str(window)]
             if args.method:
                 cmd += ["--method", args.method]
+            if args.device:
+                cmd += ["--device", args.device]
             try:
                 res = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
                 line = res.stdout.strip().splitlines()[-1] if res.returncode == 0 else \

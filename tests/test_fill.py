@@ -227,6 +227,23 @@ def test_tucker_fill_computes_in_float32_and_keeps_float64_observed_samples(reco
     assert errors[None] < 1.5 * errors["float64"] + 1.0                         # mm
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_default_fill_on_a_cuda_tensor_stays_there_and_matches_the_cpu_fill(recording):
+    """The default fill (with its error estimate) of a tensor on the GPU: output and std on that
+    device, observed samples bit-for-bit, and the error within a bound of the CPU fill's on a
+    real recording with the Tucker paper's gaps (GPU reductions round differently)."""
+    P = torchfill.read(recording("cmu_02_01.c3d")).points
+    mask = gaps.continuous_runs(len(P), P.shape[1], n_markers=10, gap_length=60, seed=0)
+    given = np.where(mask[..., None], np.nan, P)
+    G = torch.from_numpy(given).cuda()
+    out, std = torchfill.fill(G, return_std=True)
+    assert out.device == G.device and std.device == G.device and out.dtype == G.dtype
+    out = out.cpu().numpy()
+    np.testing.assert_array_equal(out[~mask], P[~mask])
+    cpu = torchfill.fill(given)
+    assert metrics.rmse_missing(out, P, mask) < 1.2 * metrics.rmse_missing(cpu, P, mask) + 0.5
+
+
 def test_default_leaves_markers_without_observed_motion_unfilled(recording):
     """On a real recording with a heavy mask (a third of the markers hidden over most of the
     trial, two markers seen only in isolated frames), the default leaves NaN exactly the samples
