@@ -146,6 +146,29 @@ def test_segment_fill_kept_or_not_gives_the_same_bits_and_callers_cannot_change_
     assert (plain[2][kept[3]] == -1).all() and np.isfinite(kept[0][kept[3]]).all()
 
 
+def test_segment_fill_gives_the_same_bits_on_one_thread_and_two():
+    """The markers' estimates run side by side on torch's threads and are merged in the order
+    of the serial loop: a marker in two segments takes the same segment's estimate either way."""
+    X = _segment_motion()
+    X[100:160, 0] = np.nan
+    X[250:, 4] = np.nan                   # in both segments: the merge order decides
+    X[40:90, 3] = np.nan
+    X[120:130, 1] = np.nan
+    segments = {"a": [0, 1, 2, 3, 4], "b": [3, 4, 5, 6, 7]}
+    threads = torch.get_num_threads()
+    results = []
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            rigid.clear_cache()
+            results.append(segment_fill(X, None, segments, bridge=True))
+    finally:
+        torch.set_num_threads(threads)
+    for a, b in zip(*results):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert set(np.unique(results[0][2][250:, 4])) <= {0, 1} and (results[0][2][250:, 4] >= 0).all()
+
+
 def test_fewer_than_three_mates_is_left_to_other_models_and_the_method_says_so():
     truth = _segment_motion()
     X = truth.copy()

@@ -51,6 +51,7 @@ import torch
 
 from .. import segments as _segments
 from ..metrics import norm_last
+from ..ops.threads import thread_map
 from .base import Param, Solver, register
 from .interp import Pchip
 
@@ -618,6 +619,7 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
     pj, pk = np.concatenate(pairs_j), np.concatenate(pairs_k)
     uniq = np.unique(np.stack([pj, pk], 1), axis=0)
     stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
+    tasks = []                                  # (segment, marker, mates, weights, shape)
     for si, (s, m) in enumerate(members.items()):
         if m.size <= min_mates:
             continue
@@ -632,21 +634,22 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             idx = stats.lookup(np.full(M.size, j), M)
             spread = np.where(idx >= 0, stats.spread[np.maximum(idx, 0)], np.nan)
             w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
-            if (w > 0).sum() < min_mates:
-                continue
-            e, r, b = _segment_estimate(X, seen, int(j), M, w, min_mates,
-                                     _shape(stats, M, floor))
-            per_coord = r / np.sqrt(3.0)
-            rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
-            mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
-                            np.inf)
-            fin = np.isfinite(e).all(axis=1)
-            was = bridged[:, j]              # a segment's fit from three mates before any bridge
-            better = fin & ((seg_of[:, j] < 0) | ((b == was) & (rank < mine)) | (was & ~b))
-            est[better, j] = e[better]
-            std[better, j] = per_coord[better]
-            seg_of[better, j] = si
-            bridged[better, j] = b[better]
+            if (w > 0).sum() >= min_mates:
+                tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
+    estimates = thread_map(lambda task: _segment_estimate(X, seen, task[1], task[2], task[3],
+                                                          min_mates, task[4]), tasks)
+    for (si, j, *_), (e, r, b) in zip(tasks, estimates):    # in order: the same choice
+        per_coord = r / np.sqrt(3.0)
+        rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
+        mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
+                        np.inf)
+        fin = np.isfinite(e).all(axis=1)
+        was = bridged[:, j]              # a segment's fit from three mates before any bridge
+        better = fin & ((seg_of[:, j] < 0) | ((b == was) & (rank < mine)) | (was & ~b))
+        est[better, j] = e[better]
+        std[better, j] = per_coord[better]
+        seg_of[better, j] = si
+        bridged[better, j] = b[better]
     return est, std, seg_of, bridged
 
 
