@@ -636,8 +636,11 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
             if (w > 0).sum() >= min_mates:
                 tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
-    estimates = thread_map(lambda task: _segment_estimate(X, seen, task[1], task[2], task[3],
-                                                          min_mates, task[4]), tasks)
+
+    def estimate(task):
+        _, j, M, w, shape = task
+        return _segment_estimate(X, seen, j, M, w, min_mates, shape)
+    estimates = thread_map(estimate, tasks)     # side by side; yielded in the tasks' order
     for (si, j, *_), (e, r, b) in zip(tasks, estimates):    # in order: the same choice
         per_coord = r / np.sqrt(3.0)
         rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
