@@ -1,4 +1,5 @@
-"""The QC report as one self-contained HTML page (no network: inline SVG, PNG and JavaScript).
+"""The QC verdicts as text (:func:`summary`, :func:`format_table`), JSON (:func:`to_json`) and one
+self-contained HTML page (:func:`html_report`; no network: inline SVG, PNG and JavaScript):
 
 - a summary with the thresholds in the file's units;
 - a marker x time overview of every gap, coloured by verdict (frames numbered as in the file);
@@ -14,10 +15,12 @@ from __future__ import annotations
 
 import html
 import math
+from dataclasses import asdict
 
 import numpy as np
 
 from ..solvers.rigid import rigid_pairs
+from .verdicts import VERDICTS, rigid_partners, table_thresholds
 
 #: Figures at most (the worst gaps first); the table lists every gap.
 MAX_FIGURES = 200
@@ -31,6 +34,72 @@ def _fmt(v, digits: int = 3) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return ""
     return f"{v:.{digits}g}" if isinstance(v, float) else str(v)
+
+
+def summary(rows: list[dict]) -> str:
+    """``N gaps: a ok, b check, c reject`` (+ unfilled)."""
+    n = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
+    empty = sum(r["filled_frames"] == 0 for r in rows)
+    samples = sum(r["unfilled"] for r in rows)
+    return (f"{len(rows)} gaps: {n['ok']} ok, {n['check']} check, {n['reject']} reject"
+            + (f" ({empty} left unfilled)" if empty else "")
+            + (f"; {samples} missing sample(s) left unfilled" if samples else ""))
+
+
+def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = None) -> str:
+    """The gap table as fixed-width text, thresholds first (in the file's units)."""
+    th = table_thresholds(rows)
+    if th is None:
+        return "no gaps"
+    u = th.units or units
+    has_std = any(np.isfinite(r["est_rmse"]) for r in rows) if has_std is None else has_std
+    lines = [f"thresholds ({u}):"] + [f"  {line}" for line in th.lines()]
+    if not has_std:
+        lines.append("  no error estimate given: verdicts from the plausibility tests only "
+                     "(fill --std OUT.csv, then qc --std OUT.csv)")
+    width = max(6, min(16, max(len(r["marker"]) for r in rows)))
+    rig = th.dims == 3                                  # no rigid bodies in image keypoints
+    lines.append(f"{'marker':<{width}} {'frames':>13} {'len':>5} {'unfilled':>8} {'kind':<8} "
+                 f"{'est_rmse':>9} {'max_step':>9} " + (f"{'rigid_x':>7} " if rig else "")
+                 + f"{'support':>7}  verdict  reasons")
+    lines.append(f"{'':<{width}} {'(file)':>13} {'':>5} {'(frames)':>8} {'':<8} "
+                 f"{'(' + u + ')':>9} {'(' + u + ')':>9}" + (f" {'spread':>7}" if rig else ""))
+    for r in rows:
+        lines.append(f"{r['marker'][:width]:<{width}} {r['first_frame']:>6}-{r['last_frame']:<6} "
+                     f"{r['frames']:>5} {r['unfilled']:>8} {r['kind']:<8} {r['est_rmse']:>9.3g} "
+                     f"{r['max_step']:>9.3g} "
+                     + (f"{r['rigid_ratio']:>7.3g} " if rig else "")
+                     + f"{r['support']:>7.0%}  {r['verdict']:<7}  {'; '.join(r['reasons'])}")
+    return "\n".join(lines)
+
+
+def to_json(rows: list[dict]) -> list[dict]:
+    """One JSON-ready object per gap: ``marker``, ``first_frame``, ``last_frame`` (the file's
+    numbering), ``verdict``, ``est_rmse`` (file units, None without std), ``reasons``,
+    ``segment`` (None until segments are known), plus the measurements."""
+    out = []
+    for r in rows:
+        def num(v):
+            return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
+        out.append({"marker": r["marker"], "first_frame": int(r["first_frame"]),
+                    "last_frame": int(r["last_frame"]), "verdict": r["verdict"],
+                    "est_rmse": num(r["est_rmse"]), "reasons": list(r["reasons"]),
+                    "segment": r.get("segment"), "frames": r["frames"], "kind": r["kind"],
+                    "filled_frames": r["filled_frames"], "unfilled": r["unfilled"],
+                    "support": num(r["support"]),
+                    "max_step": num(r["max_step"]), "rigid_ratio": num(r["rigid_ratio"]),
+                    "rigid_partner": r["rigid_partner"] or None, "outside": r["outside"],
+                    "extrapolated": r["extrapolated"], "blackout": r["blackout"]})
+    return out
+
+
+def thresholds_json(rows: list[dict]) -> dict | None:
+    th = table_thresholds(rows)
+    if th is None:
+        return None
+    d = asdict(th)
+    d["volume"] = [list(map(float, th.volume[0])), list(map(float, th.volume[1]))]
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
 def overview_svg(rows: list[dict], n_frames: int, labels, first_frame: int = 0,
@@ -233,8 +302,6 @@ _CSS = ("body{font-family:sans-serif;margin:20px;color:#222}table{border-collaps
 def html_report(points, filled, rows: list[dict], *, title: str, rate=None, units="",
                 names=None, std=None, first_frame: int = 0, max_figures: int = MAX_FIGURES) -> str:
     """The report page (see the module docstring) for the gap ``rows`` of :func:`qc.gap_table`."""
-    from . import rigid_partners, summary, table_thresholds
-
     X, F = np.asarray(points, dtype=np.float64), np.asarray(filled, dtype=np.float64)
     T, J, D = X.shape
     labels = list(names) if names is not None else [str(j) for j in range(J)]
