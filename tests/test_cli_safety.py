@@ -127,6 +127,7 @@ def test_a_full_disk_keeps_the_old_report(tmp_path, walk, capsys, monkeypatch):
     assert code == 2
     _one_error(capsys, "No space left on device")
     assert report.read_text() == "the report of yesterday"
+    assert not (tmp_path / "o.npz").exists()                 # exit 2: nothing new on disk
     assert not [p for p in tmp_path.iterdir() if "torchfill-" in p.name]   # no temporary left
 
 

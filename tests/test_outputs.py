@@ -196,3 +196,58 @@ def test_sweep_removes_what_a_killed_write_left(tmp_path):
     keep.mkdir()
     sweep(tmp_path / "o.c3d")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".other.c3d.torchfill-abc123"]
+
+
+def test_a_run_is_all_or_nothing(tmp_path):
+    """A side output that cannot be written leaves no main output behind, and the old files."""
+    old = tmp_path / "old.csv"
+    old.write_text("yesterday")
+
+    def fail(tmp):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    with pytest.raises(FileFormatError, match="No space left.*nothing written"):
+        with Outputs() as run:
+            run.write_text(tmp_path / "main.csv", "the fill")
+            run.write_text(old, "today")
+            run.write(tmp_path / "side.html", fail)
+    assert _listing(tmp_path) == {"old.csv": b"yesterday"}
+    with Outputs() as run:                          # and all of it when nothing fails
+        run.write_text(tmp_path / "main.csv", "the fill")
+        run.write_text(old, "today")
+        assert (old.read_text(), (tmp_path / "main.csv").exists()) == ("yesterday", False)
+    assert _listing(tmp_path) == {"main.csv": b"the fill", "old.csv": b"today"}
+
+
+def test_a_failed_rename_gives_the_old_files_back(tmp_path, monkeypatch):
+    first, second = tmp_path / "a.csv", tmp_path / "b.csv"
+    first.write_text("old a")
+    real = os.replace
+
+    def replace(src, dst):
+        if str(dst).endswith("b.csv"):
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        return real(src, dst)
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(FileFormatError, match="b.csv: cannot write.*nothing written"):
+        with Outputs() as run:
+            run.write_text(first, "new a")
+            run.write_text(second, "new b")
+    assert _listing(tmp_path) == {"a.csv": b"old a"}
+
+
+def test_write_refuses_a_source_changed_since_it_was_read(tmp_path, walk):
+    src = tmp_path / "a.c3d"
+    torchfill.write(_seq(walk), src)
+    seq = torchfill.read(src)
+    filled = torchfill.fill(seq, "linear")
+    other = _seq(walk)
+    other.points[...] += 495.0
+    torchfill.write(other, src)                     # a re-export replaces the recording
+    out = tmp_path / "o.c3d"
+    with pytest.raises(FileFormatError, match="a.c3d: changed on disk since it was read"):
+        torchfill.write(filled, out)
+    assert not out.exists()
+    torchfill.write(filled, tmp_path / "o.npz")    # no write-back: the source is not used
+    again = torchfill.fill(torchfill.read(src), "linear")
+    torchfill.write(again, out)                     # read again: written
+    assert np.allclose(torchfill.read(out).points, again.points, atol=1e-3)

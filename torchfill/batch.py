@@ -129,8 +129,7 @@ def write_report(seq, filled, path, title: str, rows=None, plan=None, *, std=Non
 
 def fill_file(job: Job) -> dict:
     """Read, fill and write one file with its side outputs, all through one guarded writer; a
-    summary row (``error`` set on failure; then nothing of this file is written, or the outputs
-    written before the failing one are listed in ``outputs``)."""
+    summary row (``error`` set on failure; then nothing of this file is written)."""
     import torchfill
     from .io.outputs import Outputs
 
@@ -174,6 +173,7 @@ def fill_file(job: Job) -> dict:
         if not isinstance(err, (ValueError, OSError, KeyError)):
             text = f"internal error: {type(err).__name__}: {text}"
         row["error"] = text if text.startswith(job.input) else f"{job.input}: {text}"
+        row["outputs"] = []                          # the guarded writer wrote none of them
     row["seconds"] = round(time.perf_counter() - start, 3)
     return row
 

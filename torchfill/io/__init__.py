@@ -21,11 +21,17 @@ class FileFormatError(ValueError):
 def read(path, **kwargs) -> MarkerSequence:
     """Read a recording (.c3d, .trc, .npy, .npz, .csv, OpenPose folder) into a
     :class:`MarkerSequence`."""
+    from .outputs import source_stamp
+
     path = Path(path)
     reader = _pick(path, "read")
     if not path.is_file() and not path.is_dir():
         raise FileFormatError(f"{path}: no such file")
-    return reader(path, **kwargs)
+    stamp = source_stamp(path)
+    seq = reader(path, **kwargs)
+    if isinstance(seq, MarkerSequence) and seq.source is not None and path.is_file():
+        seq.meta["source_stamp"] = stamp     # a write-back refuses a source changed since
+    return seq
 
 
 def write(seq: MarkerSequence, path, **kwargs) -> Path:
@@ -35,7 +41,8 @@ def write(seq: MarkerSequence, path, **kwargs) -> Path:
 
     ``seq`` may also be an array of shape ``(T, J, 3)`` (labels M1..MJ, 100 Hz, mm). A C3D or TRC
     written from a sequence read from a file of the same kind keeps that file and changes only the
-    filled samples (see :mod:`torchfill.io.c3d`, :mod:`torchfill.io.trc`).
+    filled samples (see :mod:`torchfill.io.c3d`, :mod:`torchfill.io.trc`); it is refused (one
+    line, nothing written) when that source file changed on disk since it was read.
     """
     from .outputs import Outputs
 

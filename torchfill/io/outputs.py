@@ -11,11 +11,13 @@ checks all of it *before* any work starts:
 - the folder of every output must exist, be a folder and be writable; an output may not be an
   existing folder (a recording is a file) or an existing read-only file.
 
-Writing (:meth:`Outputs.write`) is atomic: the format writer serialises into a private folder next
-to the target (same file system, same file name, so messages read the same), the data is synced to
-disk, and the file is renamed over the target. A failure at any point (a full disk, an error, a
-signal) leaves the old file as it was and no temporary file behind. A symbolic link at the target
-is replaced by the new file; its target is never written.
+Writing (:meth:`Outputs.write`) is atomic, and a run is all or nothing: the format writer
+serialises into a private folder next to the target (same file system, same file name, so messages
+read the same) and the data is synced to disk; the files are renamed over their targets together
+at :meth:`Outputs.commit` (the end of the ``with`` block), once every output of the run is ready.
+A failure at any point (a full disk, an error, a signal) leaves every old file as it was and no
+new or temporary file behind: an error exit means nothing new on disk. A symbolic link at the
+target is replaced by the new file; its target is never written.
 
 Write-back (a C3D or TRC written into a copy of its source file) takes its template from a private
 copy of the source made just before it was read (:meth:`Outputs.add_input` with
@@ -59,6 +61,16 @@ class _Write:
 
 
 @dataclass
+class _Staged:
+    path: Path
+    landing: str
+    holder: Path | None  # private folder beside the target holding the new file
+    tmp: Path | None     # the new file (None: ``action`` writes it at commit)
+    action: Callable[[], None] | None = None
+    undo: Callable[[], None] | None = None      # what staging made besides (a backup)
+
+
+@dataclass
 class _Template:
     copy: Path | None    # private copy of a source file (None: folders, formats not written back)
     stamp: tuple         # the source's fingerprint when it was copied
@@ -79,6 +91,7 @@ class Outputs:
         self._templates: dict[str, _Template] = {}
         self._wanted: list[_Read] = []
         self._private: Path | None = None
+        self._staged: list[_Staged] = []
 
     # -- what the run reads --------------------------------------------------------------------
     def add_input(self, path, role: str = "input", *, template: bool = False) -> Path:
@@ -199,10 +212,12 @@ class Outputs:
                                       f"{other.path} of this run; give them different names")
         return landing
 
-    def write(self, path, serialise: Callable[[Path], None], what: str = "output") -> Path:
-        """Write ``path`` atomically: ``serialise(tmp)`` writes the content to ``tmp`` (a path in
-        a private folder beside ``path``, with ``path``'s name); then sync, rename over ``path``.
-        ``path`` is registered now if it was not; the checks run again at write time."""
+    def write(self, path, serialise: Callable[[Path], None], what: str = "output",
+              undo: Callable[[], None] | None = None) -> Path:
+        """Stage ``path``: ``serialise(tmp)`` writes the content to ``tmp`` (a path in a private
+        folder beside ``path``, with ``path``'s name), synced now and renamed over ``path`` at
+        :meth:`commit`. ``path`` is registered now if it was not; the checks run again at write
+        time. ``undo`` removes what ``serialise`` made besides (run if the run fails)."""
         path = Path(path)
         me = next((w for w in self._writes if w.path == path), None)
         if me is None:
@@ -214,9 +229,9 @@ class Outputs:
         try:
             holder = Path(tempfile.mkdtemp(prefix=f".{path.name}{_TMP_TAG}", dir=folder))
         except OSError as err:
+            self.discard()
             raise FileFormatError(f"{path}: cannot write ({err.strerror or err})") from None
         tmp = holder / path.name
-        global WRITING
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
@@ -230,41 +245,87 @@ class Outputs:
             finally:
                 os.close(fd)
             os.chmod(tmp, _mode_for(landing))
-            WRITING += 1
-            try:
-                os.replace(tmp, landing)
-                _sync_folder(folder)
-            finally:
-                WRITING -= 1
         except BaseException as err:
             shutil.rmtree(holder, ignore_errors=True)
+            if undo is not None:
+                undo()
+            self.discard()
             if isinstance(err, FileFormatError):
                 raise FileFormatError(_renamed(err, tmp, path)) from None
             if isinstance(err, OSError):
-                kept = " (the existing file is unchanged)" if os.path.lexists(landing) else ""
-                raise FileFormatError(f"{path}: cannot write ({err.strerror or err})"
-                                      f"{kept}") from None
+                kept = ", the existing file is unchanged" if os.path.lexists(landing) else ""
+                raise FileFormatError(f"{path}: cannot write ({err.strerror or err}); nothing "
+                                      f"written{kept}") from None
             raise
-        shutil.rmtree(holder, ignore_errors=True)
+        self._staged.append(_Staged(path, landing, holder, tmp, undo=undo))
         return path
+
+    def commit(self) -> None:
+        """Put every staged output in place (folders written by their own writer first, then
+        the files renamed over their targets); on a failure, the targets renamed so far get
+        their old files back and nothing new is left. Called at the end of the ``with`` block."""
+        staged, self._staged = self._staged, []
+        done: list[tuple[_Staged, Path | None]] = []
+        item = staged[0] if staged else None
+        global WRITING
+        WRITING += 1
+        try:
+            for item in [s for s in staged if s.action is not None]:
+                item.action()
+            for item in [s for s in staged if s.action is None]:
+                old = _keep_old(item)
+                os.replace(item.tmp, item.landing)
+                done.append((item, old))
+            for folder in {os.path.dirname(s.landing) for s in staged}:
+                _sync_folder(Path(folder))
+        except BaseException as err:
+            for put, old in reversed(done):
+                if old is not None:
+                    os.replace(old, put.landing)
+                else:
+                    Path(put.landing).unlink(missing_ok=True)
+            self._staged = staged
+            self.discard()
+            if isinstance(err, OSError):
+                raise FileFormatError(f"{item.path}: cannot write ({err.strerror or err}); "
+                                      "nothing written") from None
+            raise
+        finally:
+            WRITING -= 1
+        for item in staged:
+            if item.holder is not None:
+                shutil.rmtree(item.holder, ignore_errors=True)
+
+    def discard(self) -> None:
+        """Drop every staged output (nothing of this run is written)."""
+        staged, self._staged = self._staged, []
+        for item in staged:
+            if item.holder is not None:
+                shutil.rmtree(item.holder, ignore_errors=True)
+            if item.undo is not None:
+                item.undo()
 
     def write_text(self, path, text: str, what: str = "output") -> Path:
         return self.write(path, lambda tmp: tmp.write_bytes(text.encode("utf-8")), what)
 
     def write_sequence(self, seq, path, what: str = "output", backup: Path | None = None,
                        **kwargs) -> Path:
-        """Write a recording with the format writer of ``path``'s suffix (through the write-back
+        """Stage a recording with the format writer of ``path``'s suffix (through the write-back
         template, see :meth:`template`; ``kwargs`` go to the writer). ``backup``: first keep the
         file at ``path`` under this name (a hard link where possible, else a copy); removed again
-        if the write fails."""
+        if the run fails."""
         from . import _pick
 
         path = Path(path)
+        source = getattr(seq, "source", None)
+        if source is not None and os.path.realpath(source) not in self._templates:
+            _refuse_changed_source(seq, path)
         seq = self.template(seq)
-        if path.is_dir() or not path.suffix:             # an OpenPose folder: its own atomic write
-            self._check(path, what, replace_input=False, folder=True, hint="",
-                        me=next((w for w in self._writes if w.path == path), None))
-            _pick(path, "write")(seq, path, **kwargs)
+        if path.is_dir() or not path.suffix:      # an OpenPose folder: its own atomic write
+            me = next((w for w in self._writes if w.path == path), None)
+            landing = self._check(path, what, replace_input=False, folder=True, hint="", me=me)
+            self._staged.append(_Staged(path, landing, None, None,
+                                        action=lambda: _pick(path, "write")(seq, path, **kwargs)))
             return path
         made = False
 
@@ -274,14 +335,15 @@ class Outputs:
             if backup is not None:
                 _copy_aside(path, backup)
                 made = True
-        try:
-            return self.write(path, serialise, what)
-        except BaseException:
+
+        def undo() -> None:
             if made:
                 Path(backup).unlink(missing_ok=True)
-            raise
+        return self.write(path, serialise, what, undo=undo)
 
     def close(self) -> None:
+        """Drop what was not committed, and the private copies of the templates."""
+        self.discard()
         if self._private is not None:
             shutil.rmtree(self._private, ignore_errors=True)
             self._private = None
@@ -289,8 +351,12 @@ class Outputs:
     def __enter__(self) -> "Outputs":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, kind, *exc) -> None:
+        try:
+            if kind is None:
+                self.commit()
+        finally:
+            self.close()
 
     def __del__(self):
         self.close()
@@ -349,6 +415,39 @@ def _copy_aside(path: Path, backup: Path) -> None:
         os.link(path, backup)
     except OSError:
         shutil.copy2(path, backup)
+
+
+def source_stamp(path) -> tuple:
+    """The fingerprint :func:`torchfill.read` keeps of the file it read (``meta["source_stamp"]``)."""
+    return _stamp(Path(path))
+
+
+def _refuse_changed_source(seq, path: Path) -> None:
+    """A write-back into a copy of ``seq``'s source file (same format) when that file is no
+    longer the one read (no private template of it kept by this run): one line, nothing
+    written. Its other bytes would come from the new file, the samples from the old one."""
+    source, stamp = getattr(seq, "source", None), getattr(seq, "meta", {}).get("source_stamp")
+    if source is None or stamp is None:
+        return
+    suffix = Path(source).suffix.lower()
+    if suffix not in WRITE_BACK or path.suffix.lower() != suffix:
+        return
+    if _stamp(Path(source)) != tuple(stamp):
+        raise FileFormatError(f"{source}: changed on disk since it was read; nothing written to "
+                              f"{path} (read it again, or write another format)")
+
+
+def _keep_old(item: _Staged) -> Path | None:
+    """A hard link to the file a staged output replaces, in its private folder (None: no file
+    there, or it cannot be linked: then a failed run cannot give it back)."""
+    if item.holder is None or not os.path.isfile(item.landing) or os.path.islink(item.landing):
+        return None
+    old = item.holder / (item.path.name + ".old")
+    try:
+        os.link(item.landing, old)
+    except OSError:
+        return None
+    return old
 
 
 def _ident(st: os.stat_result) -> tuple:
