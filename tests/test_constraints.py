@@ -77,6 +77,20 @@ def test_extrapolation_limit_leaves_the_far_end_unfilled_with_a_warning():
     assert report.unfilled_extrapolation == 40
 
 
+def test_the_extrapolation_count_is_what_stays_unfilled():
+    """A blackout inside a spatially filled trial end: the limit drops its frames, the blackout
+    interpolation fills them again; the warning counts only what the output leaves NaN."""
+    X = _walk()
+    missing = np.zeros(X.shape[:2], dtype=bool)
+    missing[150:, 4] = True
+    missing[170:180] = True                     # no marker seen in these frames
+    F = X.copy()
+    F[missing] = X[missing] + 1.0               # a spatial method's fill
+    out, report = constrain(F, missing, extrapolate=5, spatial=True)
+    left = int((missing & ~np.isfinite(out).all(axis=2)).sum())
+    assert report.unfilled_extrapolation == left
+
+
 def test_blackout_frames_are_interpolated_not_invented():
     X = _walk()
     missing = np.zeros(X.shape[:2], dtype=bool)

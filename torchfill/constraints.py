@@ -183,8 +183,10 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         report.long_gaps = [(j, a, b) for j, a, b in gap_runs(free) if b - a > long
                             and observed[:, j].any()]
     support = observed.sum(axis=1) >= SPATIAL_MIN if spatial else np.zeros(len(F), dtype=bool)
-    _limit_extrapolation(F, free, extrapolate, report, support)
+    dropped = _limit_extrapolation(F, free, extrapolate, report, support)
     _interpolate_blackouts(F, observed, free, report)
+    # samples the limit dropped that the blackout interpolation filled again are not left NaN
+    report.unfilled_extrapolation = int((dropped & ~_finite(F)).sum())
     free &= _finite(F)
     _blend_edges(F, free)
     if F.shape[2] == 3:
@@ -225,10 +227,11 @@ def _runs(mask: np.ndarray, T: int):
         yield j, a, b, a == 0, b == T
 
 
-def _limit_extrapolation(F, free, extrapolate, report, support) -> None:
+def _limit_extrapolation(F, free, extrapolate, report, support) -> np.ndarray:
     """Keep at most ``extrapolate`` frames of a trial-end gap next to its observed edge, besides
-    the frames with spatial ``support`` (T,)."""
+    the frames with spatial ``support`` (T,); returns the (T, J) samples set to NaN."""
     T = F.shape[0]
+    dropped = np.zeros(free.shape, dtype=bool)
     for j, a, b, at_start, at_end in _runs(free, T):
         if not (at_start or at_end) or (at_start and at_end):
             continue
@@ -240,9 +243,10 @@ def _limit_extrapolation(F, free, extrapolate, report, support) -> None:
             continue
         drop = np.arange(a, b - extrapolate) if at_start else np.arange(a + extrapolate, b)
         drop = drop[~support[drop] & filled[drop - a]]
-        report.unfilled_extrapolation += int(drop.size)
         report.time_samples -= int(drop.size)
         F[drop, j] = np.nan
+        dropped[drop, j] = True
+    return dropped
 
 
 def _interpolate_blackouts(F, observed, free, report) -> None:
