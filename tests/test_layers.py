@@ -9,7 +9,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "torchfill"
 
 #: Layer of each top-level part, bottom first. Parts of one layer may import one another.
 LAYERS = [
-    {"sequence", "gaps", "metrics", "ops", "_catalog"},
+    {"sequence", "gaps", "metrics", "ops", "runtime", "_catalog"},
     {"io", "data", "projection", "segments"},
     {"solvers"},
     {"windows", "constraints", "qc"},

@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 from .metrics import gap_runs, norm_last, step_limit, volume
-from .ops.cache import Memo
+from .runtime.cache import Memo
 from .solvers.rigid import RigidPairs, rigid_fill, rigid_pairs
 
 #: Weight of one soft-distance projection step (0 = off, 1 = full projection each iteration).
@@ -499,7 +499,7 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
     constrained in threads (numpy lets go of the GIL for most of it). ``fill()`` passes this
     function to ``auto`` as its ``post`` fit data.
     """
-    from . import ops
+    from .runtime.threads import thread_map
 
     donor = torch.zeros_like(missing)
     if fills.shape[0] == 0:
@@ -516,7 +516,7 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors, segments=segments)
-    done = list(ops.thread_map(one, fills))
+    done = list(thread_map(one, fills))
     if done[-1][1].rigid_done is not None:
         donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)
     out = torch.stack([torch.from_numpy(G) for G, _ in done]).to(device=fills.device,

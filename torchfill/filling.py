@@ -15,8 +15,8 @@ import torch
 from .constraints import constrain, constrain_candidates, meet_kept
 from .qc import EST_CHECK_MM, alone, per_mm, untested
 from .metrics import gap_runs
-from .ops.cache import clear_all as clear_kept
-from .ops.memory import trim_heap
+from .runtime.cache import clear_all as clear_kept
+from .runtime.memory import trim_heap
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
@@ -140,7 +140,7 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
     workers : int, optional
         Windows solved at once, in threads that share torch's intra-op threads out (default and
         most: that thread count, ``torch.get_num_threads()``; on CPU only; see
-        :func:`torchfill.ops.thread_map`). The first window runs alone and the fills blend in
+        :func:`torchfill.runtime.threads.thread_map`). The first window runs alone and the fills blend in
         window order, so a fill does not depend on which window finishes first; it does depend on
         the threads per window, which change how float32 sums round (accuracy the same).
     reject : float, optional

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from .metrics import gap_runs
-from .ops.threads import thread_map
+from .runtime.threads import thread_map
 
 #: Default window length in frames (chosen on accuracy and speed, see the README's "Long recordings").
 WINDOW = 6000

@@ -72,7 +72,8 @@ from collections.abc import Iterator
 import torch
 
 from .. import ops
-from ..ops.memory import trim_heap
+from ..runtime.memory import trim_heap
+from ..runtime.threads import thread_map
 from .base import Param, Solver, available, get_solver, register
 from .holdout import mirrored_edge_holdout, shifted_gap_holdout
 
@@ -126,7 +127,7 @@ SESSION = "+session"
 TWINS = ("li", "glr", "pma", "pca_gloersen")
 ALONE = ("lgrnn", "pca_gloersen")
 #: Relative time of a candidate's fit (others: 1), so that the longest start first when they run
-#: side by side (:func:`torchfill.ops.thread_map`'s ``cost``): seconds at one thread on
+#: side by side (:func:`torchfill.runtime.threads.thread_map`'s ``cost``): seconds at one thread on
 #: bench_long's 3 000 frames x 41 markers (tucker_tnn 5.9, rigid 3.3, pma 2.7, lgrnn 0.8, glr 0.6,
 #: li 0.5, pchip 0.2, spline 0.1, pca_gloersen 0.1); a ``+session`` twin as its method.
 COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3,
@@ -887,7 +888,7 @@ class Auto(Solver):
 
     def _fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit",
                  case: tuple | None = None) -> Iterator:
-        """:meth:`_attempt` for each name, in order; on CPU in threads (see ``ops.thread_map``).
+        """:meth:`_attempt` for each name, in order; on CPU in threads (``runtime.threads``).
         Each finished fit is reported (:meth:`Solver.report`): ``{stage}=k``, ``{stage}s=n``
         (``fit``/``fits`` on the hold-out, ``refit``/``refits``; the step's own record counts the
         ``candidates`` that ran)."""
@@ -900,7 +901,7 @@ class Auto(Solver):
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
             return out
-        return ops.thread_map(attempt, names, workers,
+        return thread_map(attempt, names, workers,
                               cost=lambda name: COST.get(name.removesuffix(SESSION), 1.0))
 
     def _run_candidates(self, fit_missing: Tensor) -> tuple[list[str], Tensor]:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import torch
 
 from .. import ops
-from ..ops.cache import Memo
+from ..runtime.cache import Memo
 from . import session
 from .base import Param, Solver, register
 
@@ -111,7 +111,7 @@ def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, 
     jumps by up to a metre at gap edges on real recordings) is interpolated linearly instead.
 
     ``auto`` asks for the same fill twice per mask (``pca_gloersen`` and ``pma``'s WPCA model):
-    the last results are kept (:class:`torchfill.ops.cache.Memo`)."""
+    the last results are kept (:class:`torchfill.runtime.cache.Memo`)."""
     fill = missing if fill is None else fill
     args = (weight_scale, mm_weight, distal_threshold, min_cum_sv, min_markers)
     return _KEPT(lambda: _predict(P, missing, fill, *args), P, missing, fill, *args).clone()

@@ -48,7 +48,7 @@ from typing import ClassVar
 import torch
 
 from .. import ops
-from ..ops.cache import Memo
+from ..runtime.cache import Memo
 from .base import Param, Solver, register
 from . import session
 from .gloersen import body_centre, predict_missing_markers

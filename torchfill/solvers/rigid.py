@@ -51,7 +51,7 @@ import torch
 
 from .. import segments as _segments
 from ..metrics import norm_last
-from ..ops.threads import thread_map
+from ..runtime.threads import thread_map
 from .base import Param, Solver, register
 from .interp import Pchip
 
