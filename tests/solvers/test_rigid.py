@@ -10,8 +10,8 @@ import torchfill
 from torchfill import metrics
 from torchfill.segments import Segments
 from torchfill.solvers import rigid
-from torchfill.solvers.rigid import (_carry_few, _upper_nanquantile, kabsch, rigid_fill,
-                                     rigid_pairs, segment_fill)
+from torchfill.solvers.rigid import _carry_few, kabsch, rigid_fill, rigid_pairs, segment_fill
+from torchfill.solvers.rigid_pairs import _upper_nanquantile
 
 
 def _rotation(rng) -> np.ndarray:
@@ -86,11 +86,11 @@ def test_long_recordings_read_pair_statistics_from_evenly_spaced_frames(recordin
     real recording (hdm05_bd_05-01, 5920 frames read at every 5th) the rigid pairs found from a
     fifth of the frames are those found from all of them but for a few borderline pairs, and the
     distances agree to a fraction of the rigidity tolerance."""
-    from torchfill.solvers import rigid
+    from torchfill.solvers import rigid_pairs as pairs_module
 
     X = torchfill.read(recording("hdm05_bd_05-01_01_120.c3d")).points
     full = rigid_pairs(X)
-    monkeypatch.setattr(rigid, "PAIR_FRAMES", X.shape[0] // 5)
+    monkeypatch.setattr(pairs_module, "PAIR_FRAMES", X.shape[0] // 5)
     part = rigid_pairs(X)
     assert np.array_equal(full.j, part.j) and np.array_equal(full.k, part.k)
     differ = (full.rigid != part.rigid).sum()
@@ -258,7 +258,7 @@ def test_carry_with_fewer_than_three_mates():
     S = np.zeros((3, 4), dtype=bool)
     S[0, :2] = True
     S[1, 2] = True
-    out = _carry_few(P, Q, S, x, np.ones(4))
+    out = rigid._drive([_carry_few(P, Q, S, x, np.ones(4))])[0]     # a generator of requests
     np.testing.assert_allclose(out[0], R @ x[0] + np.array([1.0, -2.0, 0.5]), atol=1e-12)
     np.testing.assert_allclose(out[1], x[1] + Q[1, 2] - P[1, 2], atol=1e-12)
     np.testing.assert_array_equal(out[2], x[2])

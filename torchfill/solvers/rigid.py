@@ -44,55 +44,20 @@ import threading
 import warnings
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from .. import segments as _segments
 from ..metrics import norm_last
-from ..runtime.threads import thread_map
+from ..ops.rotation import kabsch
 from .base import Param, Solver, register
 from .interp import Pchip
+from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
 
 Tensor = torch.Tensor
 
 
-@dataclass
-class RigidPairs:
-    """Near-neighbour marker pairs and how rigid they are (one entry per pair ``(j[i], k[i])``,
-    ``j < k``; NumPy arrays)."""
-
-    j: np.ndarray
-    k: np.ndarray
-    distance: np.ndarray    # median distance while both are observed (NaN: too rarely together)
-    spread: np.ndarray      # robust spread of that distance (1.4826 x MAD)
-    rigid: np.ndarray       # bool: spread <= tol * scale
-    duplicate: np.ndarray   # bool: one marker stored twice (distance <= tol * scale)
-    scale: float            # median pairwise distance: the body's size
-    J: int                  # markers in the recording
-    tol: float = 0.005      # the rigidity tolerance, relative to ``scale``
-    wide: np.ndarray | None = None  # 95th percentile of |distance - median| while both observed
-    direction: np.ndarray | None = None  # (n, 3) mean unit vector from k to j while both observed
-    cone: np.ndarray | None = None  # 95th percentile angle (radians) to ``direction`` then
-    cover: np.ndarray | None = None  # share of the frames in which both are observed
-
-    def matrix(self, values, fill=np.nan) -> np.ndarray:
-        """A dense symmetric ``(J, J)`` array of per-pair ``values`` (for small J: reports)."""
-        v = np.asarray(values)
-        out = np.full((self.J, self.J), fill, dtype=v.dtype if v.dtype == bool else np.float64)
-        out[self.j, self.k] = out[self.k, self.j] = v
-        return out
-
-
-#: Pair distances are measured this many (frame, pair) entries at a time.
-PAIR_BLOCK = _segments.PAIR_BLOCK
-#: Pair statistics read at most this many frames, evenly spaced: their sort took 23 of the
-#: constraints' 30 s at 120 000 frames; 12 000 leaves every recording of ../shared/data whole.
-PAIR_FRAMES = 12000
-#: The body's size is the median distance of all pairs up to this many markers, else of this
-#: many pairs' worth of random pairs (the median of 20 000 pairs is within a percent of all).
-SCALE_PAIRS = 20000
 #: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
 HOLDOUT_FRAMES = 64
 #: A mate is trusted in a frame while its distances to the other mates stay within this many
@@ -109,141 +74,6 @@ FIRM = 0.5
 HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
 
-def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
-                pairs: tuple[np.ndarray, np.ndarray] | None = None) -> RigidPairs:
-    """Find rigid marker pairs among near neighbours from the frames where both are observed.
-
-    Parameters
-    ----------
-    X : tensor or array (T, J, 3)
-        Marker positions; NaN where missing.
-    observed : bool (T, J), optional
-        Observed samples (default: the finite ones).
-    tol : float
-        Rigid when the distance's robust spread is at most ``tol`` times the median pairwise
-        distance (``tol = 0.005`` is about 3 mm on an adult body; 0.01 lets neck and shoulder
-        pairs in; chosen on simulated gaps of HDM05, CMU and Kinetics Toolkit recordings).
-    min_frames : int
-        Pairs seen together in fewer frames are never rigid.
-    pairs : (j, k) arrays, optional
-        The pairs to measure (default: :func:`torchfill.segments.neighbour_pairs`; all pairs for
-        up to ``NEIGHBOURS + 1`` markers).
-
-    A recording longer than ``PAIR_FRAMES`` frames is read at every ``stride``-th frame.
-    """
-    X = _numpy(X)
-    observed = np.isfinite(X).all(axis=2) if observed is None else _numpy(observed).astype(bool)
-    _segments.PAIR_FRAMES, _segments.PAIR_BLOCK = PAIR_FRAMES, PAIR_BLOCK
-    J = X.shape[1]
-    st = every = None
-    if pairs is None and J * (J - 1) // 2 <= SCALE_PAIRS:    # the scale measures every pair:
-        every = _segments.pair_stats(X, observed, np.triu_indices(J, 1), min_frames=min_frames)
-        st = _subset(every, _segments.neighbour_pairs(X, observed))   # each pair on its own
-    if st is None:
-        st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
-        every = st
-    scale = _scale(X, observed, every, min_frames)
-    finite = np.isfinite(st.distance)
-    duplicate = finite & (st.distance <= tol * scale)
-    rigid = finite & (st.spread <= tol * scale)
-    frames = -(-X.shape[0] // -(-X.shape[0] // PAIR_FRAMES))         # the frames pair_stats read
-    return RigidPairs(st.j, st.k, st.distance, st.spread, rigid, duplicate, scale, J, tol, st.wide,
-                      st.direction, st.cone, st.count / max(frames, 1))
-
-
-def _subset(st: "_segments.PairStats", pairs: tuple[np.ndarray, np.ndarray]
-            ) -> "_segments.PairStats | None":
-    """The statistics of ``pairs`` taken from ``st`` (None unless ``st`` measured each of them):
-    a pair's statistics depend on its own two tracks only, so these are the bits
-    :func:`torchfill.segments.pair_stats` gives for ``pairs`` alone."""
-    j, k = (np.asarray(p, dtype=np.int64) for p in pairs)
-    order = np.lexsort((k, j))
-    i = st.lookup(j[order], k[order])
-    if (i < 0).any():                                   # a pair (j, j) of a stored-twice point
-        return None
-    return _segments.PairStats(st.j[i], st.k[i], st.distance[i], st.spread[i], st.wide[i],
-                               st.count[i], st.J, st.direction[i], st.cone[i])
-
-
-def _scale(X, observed, st, min_frames) -> float:
-    """Median pairwise distance over all pairs (or ``SCALE_PAIRS`` random ones)."""
-    J = X.shape[1]
-    if J * (J - 1) // 2 <= SCALE_PAIRS:
-        a, b = np.triu_indices(J, 1)
-    else:
-        rng = np.random.default_rng(0)
-        a = rng.integers(0, J, SCALE_PAIRS)
-        b = rng.integers(0, J, SCALE_PAIRS)
-        keep = a != b
-        a, b = np.minimum(a, b)[keep], np.maximum(a, b)[keep]
-    if st.j.size == a.size and np.array_equal(st.j, a) and np.array_equal(st.k, b):
-        d = st.distance
-    else:
-        d = _segments.pair_stats(X, observed, (a, b), min_frames=min_frames).distance
-    d = d[np.isfinite(d)]
-    return float(np.median(d)) if d.size else 1.0
-
-
-def body_size(X: np.ndarray, seen: np.ndarray, frames: int = 50) -> float:
-    """The median distance between the markers seen together, over ``frames`` evenly spaced
-    frames with the most markers seen: the body's size in the data's units (cheap: no pairs'
-    statistics over time)."""
-    count = seen.sum(axis=1)
-    order = np.argsort(-count, kind="stable")[:max(frames, 1)]
-    d = []
-    for t in order:
-        P = X[t, seen[t]]
-        if len(P) > 1:
-            i, k = np.triu_indices(len(P), 1)
-            d.append(np.linalg.norm(P[i] - P[k], axis=1))
-    return float(np.median(np.concatenate(d))) if d else 1.0
-
-
-def _numpy(X) -> np.ndarray:
-    if isinstance(X, torch.Tensor):
-        return X.detach().cpu().numpy()
-    return np.asarray(X)
-
-
-def _upper_nanquantile(D: Tensor, q: float) -> Tensor:
-    """``torch.nanquantile(D, q, dim=0)`` (linear interpolation) for ``q >= 0.5`` from the top
-    ``(1 - q) T + 2`` values of each column (a partial selection, not a full sort: 72 vs 223 ms
-    for 3 000 frames x 820 pairs); the same values."""
-    T = D.shape[0]
-    n = (~torch.isnan(D)).sum(dim=0)
-    k = min(T, int((1 - q) * (T - 1)) + 2)
-    top = torch.topk(torch.nan_to_num(D, nan=-torch.inf), k, dim=0).values     # descending
-    p = q * (n - 1).clamp(min=0).to(D.dtype)
-    lo, hi = p.floor().long(), p.ceil().long()
-    below, above = (top.gather(0, ((n - 1) - i).clamp(0, k - 1)[None])[0] for i in (lo, hi))
-    return torch.where(n > 0, torch.lerp(below, above, p - lo.to(D.dtype)), torch.nan)
-
-
-def kabsch(P: Tensor, Q: Tensor, w: Tensor | None = None) -> tuple[Tensor, Tensor]:
-    """Least-squares rotation ``R`` and translation ``t`` with ``Q ~ P @ R.T + t``, batched.
-
-    ``P``, ``Q``: ``(n, k, 3)`` corresponding points (k >= 3, not collinear); ``w``: optional
-    ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R`` ``(n, 3, 3)`` (a
-    proper rotation, det +1) and ``t`` ``(n, 3)``.
-    """
-    if w is None:
-        cp, cq = P.mean(dim=1), Q.mean(dim=1)
-        H = (P - cp[:, None]).transpose(1, 2) @ (Q - cq[:, None])       # cross-covariance
-    else:
-        w = w / w.sum(dim=1, keepdim=True).clamp(min=torch.finfo(w.dtype).tiny)
-        P, Q = torch.where(w[..., None] > 0, P, 0.0), torch.where(w[..., None] > 0, Q, 0.0)
-        cp, cq = (w[..., None] * P).sum(dim=1), (w[..., None] * Q).sum(dim=1)
-        H = ((P - cp[:, None]) * w[..., None]).transpose(1, 2) @ (Q - cq[:, None])
-    U, _, Vh = torch.linalg.svd(H)
-    V, Ut = Vh.transpose(1, 2), U.transpose(1, 2)
-    d = torch.sign(torch.linalg.det(V @ Ut))
-    d = torch.where(d == 0, torch.ones_like(d), d)
-    E = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
-    R = V @ E @ Ut
-    t = cq - (cp[:, None] @ R.transpose(1, 2))[:, 0]
-    return R, t
-
-
 def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray,
            src: np.ndarray, dst: np.ndarray, min_mates: int = 3, shape=None, firm: bool = False
            ) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +81,8 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     ``w``; a mate counts where it is observed in both frames; with ``shape``, a mate whose
     distances to the others are off their observed band in either frame is down-weighted there:
     :func:`_consistency`; with ``firm``, a frame pair needs ``min_mates`` mates above ``FIRM``
-    there). Returns the estimates (n, 3) and the bool (n,) of those with ``min_mates`` mates."""
+    there). Returns the estimates (n, 3) and the bool (n,) of those with ``min_mates`` mates.
+    A generator: it yields its consistency and Kabsch work to :func:`_drive`."""
     W = w[None] * (seen[src][:, M] & seen[dst][:, M])
     ok = (W > 0).sum(axis=1) >= min_mates
     out = np.full((src.size, 3), np.nan)
@@ -261,7 +92,8 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     P = np.nan_to_num(X[src][:, M])
     Q = np.nan_to_num(X[dst][:, M])
     if shape is not None:
-        C = _consistency_once(P, src, W > 0, shape) * _consistency_once(Q, dst, W > 0, shape)
+        Cp, Cq = yield _Shape([(P, src, W > 0, shape), (Q, dst, W > 0, shape)])
+        C = Cp * Cq
         W = W * C
         posed = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates
         if firm and not posed.all():  # a mate off its place leaves too few to fix the pose
@@ -269,23 +101,100 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
             ok = np.zeros_like(ok)
             ok[keep] = True
             src, dst, P, Q, W = src[posed], dst[posed], P[posed], Q[posed], W[posed]
-    R, t = kabsch(torch.from_numpy(P), torch.from_numpy(Q), torch.from_numpy(W))
-    R, t = R.numpy(), t.numpy()
+    R, t = yield _Kabsch((P, Q, W))
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
     return out, ok
 
 
-def _consistency_once(P: np.ndarray, frames: np.ndarray, use: np.ndarray, shape
-                      ) -> np.ndarray:
-    """:func:`_consistency` of the rows of ``P`` taken from ``frames``, each distinct (frame,
-    mates used) computed once: a gap's frames are all carried from the same reference frame."""
-    if use.shape[1] > 40:                                   # the key would overflow
-        return _consistency(P, use, *shape)
-    key = frames.astype(np.int64) * (1 << use.shape[1]) + use @ (1 << np.arange(use.shape[1]))
+class _Shape(list):
+    """A request of :func:`_drive`: :func:`_consistency` of each ``(P, frames, use, shape)``."""
+
+
+class _Kabsch(tuple):
+    """A request of :func:`_drive`: :func:`kabsch` of ``(P, Q, W)`` (NumPy; answered in NumPy)."""
+
+
+def _drive(tasks: list) -> list:
+    """Run the generators ``tasks`` (:func:`_segment_estimate` of each marker and segment) side
+    by side: each round answers all of their pending requests in one batched computation per
+    mate count (a few large array operations instead of one small one per marker); each
+    request's answer is what it would get alone. Returns their return values in order."""
+    out: list = [None] * len(tasks)
+    asks: dict[int, object] = {}
+
+    def advance(i, answer):
+        try:
+            asks[i] = tasks[i].send(answer)
+        except StopIteration as stop:
+            out[i] = stop.value
+            asks.pop(i, None)
+    for i in range(len(tasks)):
+        advance(i, None)
+    while asks:
+        pending = list(asks.items())
+        answers = _answer([r for _, r in pending])
+        for (i, _), a in zip(pending, answers):
+            advance(i, a)
+    return out
+
+
+def _answer(requests: list) -> list:
+    """The answers to ``requests`` (:class:`_Shape` and :class:`_Kabsch`), grouped by mate count."""
+    jobs = [(r, n) for r in requests if isinstance(r, _Shape) for n in range(len(r))]
+    shapes = _batched(_consistency_rows, [_unique_rows(*r[n]) for r, n in jobs])
+    kab = _batched(_kabsch_rows, [r for r in requests if isinstance(r, _Kabsch)])
+    shapes, kab = iter(shapes), iter(kab)
+    return [[next(shapes) for _ in r] if isinstance(r, _Shape) else next(kab) for r in requests]
+
+
+def _unique_rows(P, frames, use, shape):
+    """``(P, use, D0, band, back)`` of the distinct (frame, mates used) rows: a gap's frames are
+    all carried from the same reference frame."""
+    k = use.shape[1]
+    if k > 40:                                              # the key would overflow
+        return P, use, *shape, None
+    key = frames.astype(np.int64) * (1 << k) + use @ (1 << np.arange(k))
     _, first, back = np.unique(key, return_index=True, return_inverse=True)
-    if first.size > 0.8 * key.size:                         # few repeats: not worth the copy
-        return _consistency(P, use, *shape)
-    return _consistency(P[first], use[first], *shape)[back.reshape(-1)]
+    return P[first], use[first], *shape, back.reshape(-1)
+
+
+def _batched(fn, jobs: list) -> list:
+    """``fn`` (a list of jobs of one ``k`` -> their results) over ``jobs``, tuples whose first
+    array is (n, k, ...), grouped by ``k``; the results in the jobs' order."""
+    out: list = [None] * len(jobs)
+    by_k: dict[int, list[int]] = {}
+    for i, job in enumerate(jobs):
+        by_k.setdefault(job[0].shape[1], []).append(i)
+    for idx in by_k.values():
+        for i, res in zip(idx, fn([jobs[i] for i in idx])):
+            out[i] = res
+    return out
+
+
+#: Rows of one batched consistency computation (its (n, k, k) arrays stay small).
+ROWS = 1 << 14
+
+
+def _consistency_rows(jobs: list) -> list[np.ndarray]:
+    """:func:`_consistency` of the rows of ``jobs`` (one ``k``: ``(P, use, D0, band, back)``),
+    each job's shape per row, expanded back to every row of its request (``back``)."""
+    P = np.concatenate([j[0] for j in jobs])
+    use = np.concatenate([j[1] for j in jobs])
+    reps = [j[0].shape[0] for j in jobs]
+    D0 = np.repeat(np.stack([j[2] for j in jobs]), reps, axis=0)
+    band = np.repeat(np.stack([j[3] for j in jobs]), reps, axis=0)
+    C = np.concatenate([_consistency(P[a:a + ROWS], use[a:a + ROWS], D0[a:a + ROWS],
+                                     band[a:a + ROWS]) for a in range(0, P.shape[0], ROWS)])
+    parts = np.split(C, np.cumsum(reps)[:-1])
+    return [c if j[4] is None else c[j[4]] for c, j in zip(parts, jobs)]
+
+
+def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`kabsch` of the requests ``jobs`` (one ``k``: ``(P, Q, W)``) in one batch."""
+    P, Q, W = (torch.from_numpy(np.concatenate([j[i] for j in jobs])) for i in range(3))
+    R, t = kabsch(P, Q, W)
+    cut = np.cumsum([j[0].shape[0] for j in jobs])[:-1]
+    return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
 
 
 def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
@@ -329,7 +238,7 @@ def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
     if not srcs:
         return np.zeros(0), np.zeros(0)
     src, dst, tag = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(tags)
-    est, good = _carry(X, seen, j, M, w, src, dst, shape=shape, firm=True)
+    est, good = yield from _carry(X, seen, j, M, w, src, dst, shape=shape, firm=True)
     sq = np.where(good, np.nansum((est - X[dst, j]) ** 2, axis=1), 0.0)
     lags, errs = [], []
     for n in range(len(srcs)):
@@ -347,8 +256,8 @@ def _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape=None):
     has_b, has_a = pos > 0, pos < refs.size
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
     a = refs[np.clip(pos, 0, refs.size - 1)]
-    eb, okb = _carry(X, seen, j, M, w, b, todo, min_mates, shape)
-    ea, oka = _carry(X, seen, j, M, w, a, todo, min_mates, shape)
+    eb, okb = yield from _carry(X, seen, j, M, w, b, todo, min_mates, shape)
+    ea, oka = yield from _carry(X, seen, j, M, w, a, todo, min_mates, shape)
     okb &= has_b
     oka &= has_a
     span = np.maximum(a - b, 1)
@@ -374,7 +283,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
     if todo.size == 0 or refs.size == 0:
         return est, err, np.zeros(T, dtype=bool)
-    e, good, reach = _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
+    e, good, reach = yield from _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
         codes = use[todo[left]] @ (1 << np.arange(M.size, dtype=np.int64))
@@ -387,20 +296,20 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
                 if r.size:
                     w_s = np.zeros_like(w)
                     w_s[S] = w[S]
-                    e2, g2, r2 = _estimate_at(X, seen, j, M, w_s, todo[sel], r, min_mates,
-                                                shape)
+                    e2, g2, r2 = yield from _estimate_at(X, seen, j, M, w_s, todo[sel], r,
+                                                         min_mates, shape)
                     e[sel], good[sel], reach[sel] = e2, g2, r2
                     break
                 S = S[:-1]
-    lags, errs = _holdout_curve(X, seen, j, M, w, refs, shape,
-                                reach=float(reach[good].max()) if good.any() else 0.0)
+    lags, errs = yield from _holdout_curve(X, seen, j, M, w, refs, shape, reach=float(
+        reach[good].max()) if good.any() else 0.0)
     if lags.size:
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
     else:                                 # too few observed frames to measure
         r = np.full(todo.size, np.nan)
     est[todo[good]] = e[good]
     err[todo[good]] = r[good]
-    bridged = _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
+    bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
         np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
     return est, err, bridged
 
@@ -434,7 +343,7 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     sides = []
     for e in (b, a):
         x = np.where(seen[e, j][:, None], X[e, j], est[e])
-        sides.append(_carry_few(X[e][:, M], X[t][:, M], use[e] & use[t], x, w))
+        sides.append((yield from _carry_few(X[e][:, M], X[t][:, M], use[e] & use[t], x, w)))
     s = ((t - b) / (a - b))[:, None]
     est[t] = (1 - s) * sides[0] + s * sides[1]
     anchor = np.maximum(np.where(seen[b, j], 0.0, err[b]), np.where(seen[a, j], 0.0, err[a]))
@@ -454,9 +363,8 @@ def _carry_few(P, Q, S, x, w) -> np.ndarray:
     out = x.copy()
     many = n >= 3
     if many.any():
-        R, tr = kabsch(torch.from_numpy(np.nan_to_num(P[many])),
-                       torch.from_numpy(np.nan_to_num(Q[many])), torch.from_numpy(w * S[many]))
-        out[many] = np.einsum("nc,ndc->nd", x[many], R.numpy()) + tr.numpy()
+        R, tr = yield _Kabsch((np.nan_to_num(P[many]), np.nan_to_num(Q[many]), w * S[many]))
+        out[many] = np.einsum("nc,ndc->nd", x[many], R) + tr
     first, second = np.argsort(~S, axis=1, kind="stable")[:, :2].T
     one = n == 1
     out[one] = (x + Q[row, first] - P[row, first])[one]
@@ -637,10 +545,8 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             if (w > 0).sum() >= min_mates:
                 tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
 
-    def estimate(task):
-        _, j, M, w, shape = task
-        return _segment_estimate(X, seen, j, M, w, min_mates, shape)
-    estimates = thread_map(estimate, tasks)     # side by side; yielded in the tasks' order
+    estimates = _drive([_segment_estimate(X, seen, j, M, w, min_mates, shape)
+                        for _, j, M, w, shape in tasks])
     for (si, j, *_), (e, r, b) in zip(tasks, estimates):    # in order: the same choice
         per_coord = r / np.sqrt(3.0)
         rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
