@@ -212,6 +212,9 @@ def test_interp_linear_matches_np_interp_with_held_ends(seed, dtype):
         tol = 1e-12 if dtype == torch.float64 else 1e-5
         np.testing.assert_allclose(got[:, n].double().numpy(), want, atol=tol, rtol=tol)
     assert bool((got[W] == Mt[torch.from_numpy(W)]).all())   # observed bit-for-bit
+    alone = torch.cat([ops.interp_linear(Mt[:, n:n + 1], torch.from_numpy(W[:, n:n + 1]))
+                       for n in range(N)], 1)                # each column on its own: same bits
+    assert torch.equal(got, alone)
 
 
 def test_interp_linear_unobserved_column_is_zero_and_no_nan():

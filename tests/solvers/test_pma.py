@@ -10,7 +10,8 @@ import torch
 
 import torchfill
 from torchfill import metrics
-from torchfill.solvers.pma import local_frame, space_constraint, symfilter, to_global, to_local
+from torchfill.solvers.pma import (local_frame, space_constraint, symfilter, to_global, to_local,
+                                   window_median)
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
@@ -121,6 +122,19 @@ def test_symfilter_keeps_nan_and_constant():
     assert torch.allclose(Y[~torch.isnan(Y)], torch.ones(1, dtype=torch.float64))
     ramp = torch.arange(30, dtype=torch.float64)[:, None]
     assert torch.allclose(symfilter(ramp, 9), ramp)                        # symmetric: no delay
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_window_median_is_the_windows_median_bit_for_bit(dtype):
+    g = torch.Generator().manual_seed(0)
+    for T, C in ((1, 1), (7, 3), (200, 5)):
+        for P in (torch.randn(T + 8, C, generator=g, dtype=dtype),
+                  torch.randint(0, 3, (T + 8, C), generator=g).to(dtype)):      # ties
+            want = P.unfold(0, 9, 1).median(-1).values
+            assert torch.equal(window_median(P, 4), want)
+            assert torch.equal(window_median(P.T.contiguous().T, 4), want)   # a transposed layout
+    P = torch.randn(20, 2, generator=g, dtype=dtype)
+    assert torch.equal(window_median(P, 3), P.unfold(0, 7, 1).median(-1).values)
 
 
 def _real(name: str, a: int, b: int) -> np.ndarray:

@@ -10,8 +10,23 @@ def interp_linear(M: Tensor, observed: Tensor) -> Tensor:
     """Linear interpolation of every column of ``M`` (T x N) along time over its unobserved rows.
 
     Before the first and after the last observed sample the nearest observed value is held
-    (no extrapolation). Columns with no observation at all become 0. Vectorized, device-agnostic.
+    (no extrapolation). Columns with no observation at all become 0. Vectorized, device-agnostic;
+    only the columns with a gap are computed (the others are ``M``'s own).
     """
+    if observed.shape == M.shape and M.ndim == 2 and M.shape[1] > 1:
+        gapped = ~observed.all(0)
+        n = int(gapped.sum())
+        if n == 0:
+            return M.clone()
+        if n < M.shape[1]:
+            out = M.clone()
+            out[:, gapped] = _interp_columns(M[:, gapped], observed[:, gapped])
+            return out
+    return _interp_columns(M, observed)
+
+
+def _interp_columns(M: Tensor, observed: Tensor) -> Tensor:
+    """:func:`interp_linear` on every column."""
     T = M.shape[0]
     t = torch.arange(T, device=M.device).unsqueeze(1).expand_as(M)
     prev = torch.cummax(torch.where(observed, t, -1), dim=0).values

@@ -73,7 +73,8 @@ def symfilter(X: Tensor, window: int) -> Tensor:
     for reduce in ("median", "mean"):
         P = torch.nn.functional.pad(out.T[None], (half, half), value=float("nan"))[0].T
         W = P.unfold(0, 2 * half + 1, 1)                                  # (T, C, window)
-        res = torch.where(h == half, W.median(-1).values if reduce == "median" else W.mean(-1), out)
+        full = window_median(P, half) if reduce == "median" else W.mean(-1)
+        res = torch.where(h == half, full, out)
         for r in range(2, half):                                          # shrunk windows
             t_r, c_r = torch.nonzero(h == r, as_tuple=True)
             if t_r.numel():
@@ -81,6 +82,35 @@ def symfilter(X: Tensor, window: int) -> Tensor:
                 res[t_r, c_r] = Wr.median(-1).values if reduce == "median" else Wr.mean(-1)
         out = res
     return out
+
+
+def window_median(P: Tensor, half: int) -> Tensor:
+    """Median of every ``2 half + 1``-row window of ``P`` ((T + 2 half) x C) as ``W.median(-1)``
+    of its windows, without sorting them: an odd window's median is one of its values, picked by
+    a selection network of element-wise minima and maxima over the shifted rows (rows whose
+    window holds a NaN come out undefined; :func:`symfilter` uses full windows only). Windows
+    of other sizes fall back to ``median``."""
+    T = P.shape[0] - 2 * half
+    if half != 4:
+        return P.unfold(0, 2 * half + 1, 1).median(-1).values
+    P = P.contiguous()
+    p = [P[i:i + T] for i in range(9)]
+
+    def sort2(i: int, j: int) -> None:
+        p[i], p[j] = torch.minimum(p[i], p[j]), torch.maximum(p[i], p[j])
+
+    for i, j in ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8)):
+        sort2(i, j)                                    # each triple sorted
+    p[3] = torch.maximum(p[0], p[3])                   # max of the minima
+    p[5] = torch.minimum(p[5], p[8])                   # min of the maxima
+    sort2(4, 7)
+    p[6] = torch.maximum(p[3], p[6])
+    p[4] = torch.maximum(p[1], p[4])
+    p[2] = torch.minimum(p[2], p[5])
+    p[4] = torch.minimum(p[4], p[7])
+    sort2(4, 2)
+    p[4] = torch.maximum(p[6], p[4])
+    return torch.minimum(p[4], p[2])
 
 
 def local_frame(A: Tensor, B: Tensor, C: Tensor) -> Tensor:
@@ -404,9 +434,10 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     Y, miss, c, P, missing = Y[:T0], miss[:T0], c[:T0], P[:T0], missing[:T0]
     rest = miss.unsqueeze(-1).expand_as(Y).reshape(T0, -1)
     Y = ops.interp_linear(torch.nan_to_num(Y).reshape(T0, -1), ~rest).reshape(T0, J, 3)
-    out = Y + c[:, None]
-    out = symfilter(out.reshape(T0, -1), window).reshape(T0, J, 3)
-    return torch.where(missing[..., None], out, P)
+    out = (Y + c[:, None]).reshape(T0, -1)
+    cols = missing.repeat_interleave(3, dim=1).any(0)      # filtered columns are independent:
+    out[:, cols] = symfilter(out[:, cols], window)           # only those with a gap are kept
+    return torch.where(missing[..., None], out.reshape(T0, J, 3), P)
 
 
 def training_tracks(Y: Tensor, pieces: list[tuple[int, int]], window: int) -> Tensor:
