@@ -112,9 +112,9 @@ def test_relative_links_resolve(page):
 
 
 def test_generated_pages_are_up_to_date():
-    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_docs.py"), "--check"],
+    done = subprocess.run([sys.executable, "-m", "benchmarks", "docs", "--check"], cwd=ROOT,
                           capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
-    assert done.returncode == 0, ("run `python scripts/make_docs.py`:\n" + done.stdout
+    assert done.returncode == 0, ("run `python -m benchmarks docs`:\n" + done.stdout
                                   + done.stderr[-2000:])
 
 

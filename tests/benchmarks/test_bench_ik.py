@@ -1,33 +1,28 @@
-"""The IK benchmark's own machinery (``scripts/bench_ik.py``) on one tiny case: OpenSim IK on the
+"""The IK benchmark's own machinery (``benchmarks/suites/ik.py``) on one tiny case: OpenSim IK on the
 complete recording reproduces itself, and a gapped and a filled recording both give finite joint
 angles for every frame. Skips without opensim or the OpenSim models in the data folder."""
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import torchfill
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_ik.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
     pytest.importorskip("opensim")
-    spec = importlib.util.spec_from_file_location("bench_ik", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_ik"] = module             # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    rec = module.RECORDINGS["gait2392"]
+    from benchmarks import data
+    from benchmarks.suites import ik
+
+    rec = ik.RECORDINGS["gait2392"]
     for name in (rec.trc, rec.model, rec.setup):
-        if not (module.DATA / name).is_file():
-            pytest.skip(f"{name} not found in {module.DATA}")
-    return module
+        if not (data.folder() / name).is_file():
+            pytest.skip(f"{name} not found in {data.folder()}")
+    return ik
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +32,7 @@ def tiny(bench):
     full = bench.load_recording(rec)
     recording, source, seed = bench.CASES[0]
     used = bench.ik_markers(rec)
-    mask = bench.transplant_mask(torchfill.read(bench.DATA / source), full, seed, used)
+    mask = bench.transplant_mask(torchfill.read(bench.data.folder() / source), full, seed, used)
     assert not mask[:, [j for j, lab in enumerate(full.labels) if lab not in used]].any()
     counts = np.convolve(mask.sum(axis=1), np.ones(30), mode="valid")
     start = int(counts.argmax())

@@ -24,7 +24,7 @@ run IK. The table goes to the page ``docs/ik.md`` (between its markers) and the 
 
 Usage::
 
-    OMP_NUM_THREADS=1 python scripts/bench_ik.py [--methods default,auto] [--masks 12]
+    OMP_NUM_THREADS=1 python -m benchmarks ik [--methods default,auto] [--masks 12]
         [--doc docs/ik.md] [--results experiments/results/ik]
 
 Needs ``opensim`` (``pip install opensim==4.6``) and the data folder (``TORCHFILL_DATA`` or the
@@ -32,12 +32,10 @@ Needs ``opensim`` (``pip install opensim==4.6``) and the data folder (``TORCHFIL
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import math
 import os
 import shlex
-import subprocess
 import sys
 import tempfile
 import time
@@ -49,12 +47,16 @@ import numpy as np
 
 import torchfill
 from torchfill import gaps
-from torchfill.data import data_dir
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = data_dir(REPO)
-DOC = REPO / "docs" / "ik.md"
-RESULTS = REPO / "experiments" / "results" / "ik"
+from .. import data
+from ..methods import run as run_method
+from ..peers import PEERS
+from ..rows import Rows, read_csv, write_csv
+from ..tables import write_block
+
+HELP = "fills judged by the joint angles of OpenSim inverse kinematics"
+DOC = data.DOCS / "ik.md"
+RESULTS = data.RESULTS / "ik"
 
 #: Frames of the Hamner running trial used (10 s at 60 Hz in the file; IK costs 20-40 ms a frame there).
 HAMNER_FRAMES = 240
@@ -144,7 +146,7 @@ def transplant_mask(source: torchfill.MarkerSequence, target: torchfill.MarkerSe
 def ik_markers(rec: Recording) -> list[str]:
     """The markers the IK setup uses (applied marker tasks with a positive weight)."""
     osim = _opensim()
-    tool = osim.InverseKinematicsTool(str(DATA / rec.setup))       # owns the task set
+    tool = osim.InverseKinematicsTool(str(data.folder() / rec.setup))       # owns the task set
     tasks = tool.getIKTaskSet()
     return [tasks.get(i).getName() for i in range(tasks.getSize())
             if tasks.get(i).getConcreteClassName() == "IKMarkerTask" and tasks.get(i).getApply()
@@ -152,7 +154,7 @@ def ik_markers(rec: Recording) -> list[str]:
 
 
 def load_recording(rec: Recording) -> torchfill.MarkerSequence:
-    seq = torchfill.read(DATA / rec.trc)
+    seq = torchfill.read(data.folder() / rec.trc)
     alive = ~seq.mask.all(axis=0)
     seq = seq.select(np.flatnonzero(alive))
     if rec.frames is not None:
@@ -227,9 +229,9 @@ def run_ik(rec: Recording, seq: torchfill.MarkerSequence, folder: Path) -> IKRes
     trc = folder / "markers.trc"
     writer = write_trc(seq, trc)
     start = time.perf_counter()
-    tool = osim.InverseKinematicsTool(str(DATA / rec.setup))
+    tool = osim.InverseKinematicsTool(str(data.folder() / rec.setup))
     tool.setName("ik")
-    model = osim.Model(str(DATA / rec.model))
+    model = osim.Model(str(data.folder() / rec.model))
     tool.setModel(model)
     tool.set_marker_file(str(trc))
     tool.setStartTime(0.0)
@@ -266,9 +268,9 @@ def free_rotations(rec: Recording) -> list[str]:
     """The model's rotational coordinates that IK solves from markers: not locked, not
     constrained, not held by an applied coordinate task of the setup."""
     osim = _opensim()
-    model = osim.Model(str(DATA / rec.model))
+    model = osim.Model(str(data.folder() / rec.model))
     state = model.initSystem()
-    tool = osim.InverseKinematicsTool(str(DATA / rec.setup))
+    tool = osim.InverseKinematicsTool(str(data.folder() / rec.setup))
     tasks = tool.getIKTaskSet()
     held = {tasks.get(i).getName() for i in range(tasks.getSize())
             if tasks.get(i).getApply() and tasks.get(i).getConcreteClassName() == "IKCoordinateTask"}
@@ -285,7 +287,16 @@ def free_rotations(rec: Recording) -> list[str]:
 # --------------------------------------------------------------------------------------------
 # Fill, IK, score
 # --------------------------------------------------------------------------------------------
+def label(method: str) -> str:
+    if method.startswith("peer:"):
+        return f"{PEERS[method[5:]][0]} (its gaps left)"
+    return METHODS[method][0]
+
+
 def fill_case(seq: torchfill.MarkerSequence, method: str) -> tuple[torchfill.MarkerSequence, float]:
+    if method.startswith("peer:"):
+        got = run_method(method, seq)
+        return seq.with_points(got.points), got.timing.wall
     kwargs = METHODS[method][1]
     if kwargs is None:
         return seq, 0.0
@@ -317,7 +328,7 @@ def score(ref: IKResult, got: IKResult, free: list[str], gap_frames: np.ndarray)
     return row
 
 
-def run(methods: list[str], n_masks: int, work: Path, log=print) -> list[dict]:
+def run(methods: list[str], n_masks: int, work: Path, done: Rows, log=print) -> list[dict]:
     cases = CASES[:n_masks]
     recs = {name: load_recording(RECORDINGS[name]) for name in {c[0] for c in cases}}
     refs, free = {}, {}
@@ -332,7 +343,7 @@ def run(methods: list[str], n_masks: int, work: Path, log=print) -> list[dict]:
     rows = []
     for k, (name, source_file, seed) in enumerate(cases):
         seq = recs[name]
-        source = torchfill.read(DATA / source_file)
+        source = torchfill.read(data.folder() / source_file)
         mask = transplant_mask(source, seq, seed, markers[name])
         gapped = seq.with_points(np.where(mask[..., None], np.nan, seq.points))
         gap_frames = mask.any(axis=1)
@@ -341,6 +352,8 @@ def run(methods: list[str], n_masks: int, work: Path, log=print) -> list[dict]:
             f"({100 * mask.mean():.1f} %), {mask.any(axis=0).sum()} markers, "
             f"{gap_frames.sum()} frames with a gap")
         for method in methods:
+            if done.done(recording=name, source=Path(source_file).stem, seed=seed, method=method):
+                continue
             out, fill_s = fill_case(gapped, method)
             left = int((mask & ~np.isfinite(out.points).all(axis=2)).sum())
             if method != "gaps":
@@ -355,6 +368,7 @@ def run(methods: list[str], n_masks: int, work: Path, log=print) -> list[dict]:
             row.update(recording=name, source=Path(source_file).stem, seed=seed, method=method,
                        missing_pct=100 * float(mask.mean()), nan_left=left, fill_s=fill_s)
             rows.append(row)
+            done.add(row)
             if "error" in row:
                 log(f"    {method:12s} IK FAILED: {row['error']}")
             else:
@@ -402,7 +416,7 @@ def table(summary: list[dict]) -> str:
         worse = "—" if s["worse_than_gaps"] is None else f"{s['worse_than_gaps']} of {s['masks']}"
         failed = f" (IK failed on {s['ik_failed']})" if s["ik_failed"] else ""
         lines.append(
-            f"| {METHODS[s['method']][0]}{failed} | {s['rmse_all']:.2f}° | {s['rmse_gap']:.2f}° "
+            f"| {label(s['method'])}{failed} | {s['rmse_all']:.2f}° | {s['rmse_gap']:.2f}° "
             f"| {s['rmse_hip']:.2f}° | {s['rmse_knee']:.2f}° | {s['rmse_ankle']:.2f}° "
             f"| {s['rmse_pelvis_tilt']:.2f}° | {s['max_err']:.1f}° ({s['max_hip_knee']:.1f}°) "
             f"| {s['marker_rms_mm']:.1f} mm | {worse} | {s['nan_left']} "
@@ -427,58 +441,90 @@ def case_table(rows: list[dict], methods: list[str]) -> str:
 
 
 def write_doc(path: Path, text: str) -> None:
-    """Put ``text`` between the page's ``bench_ik`` markers (scripts/docblock.py)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from docblock import write_block
-    write_block(path, "bench_ik", text, title="Fills judged by OpenSim inverse kinematics")
+    """Put ``text`` between the page's ``ik`` markers."""
+    write_block(path, "ik", text, title="Fills judged by OpenSim inverse kinematics")
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+def add_arguments(p) -> None:
+    p.add_argument("--methods", default=",".join(DEFAULT_RUN),
+                   help="comma-separated, from: " + ", ".join(METHODS) + ", peer:NAME"
+                   + " (gaps left is always run: the others are compared with it)")
+    p.add_argument("--masks", type=int, default=N_MASKS,
+                   help=f"how many masks, the first of the list (1-{len(CASES)}, "
+                   f"default {N_MASKS})")
+    p.add_argument("--doc", default=str(DOC), help="page to write the table into ('' : none)")
+    p.add_argument("--results", default=str(RESULTS),
+                   help="folder for the CSVs (resumable: rows there are not run again; '' : none)")
+    p.add_argument("--redo", action="store_true", help="recompute rows already in --results")
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _labels() -> str:
     from torchfill.filling import default_method
+
     default = default_method()
     METHODS["default"] = (f"default as shipped (`fill(seq)`: {default})", METHODS["default"][1])
     METHODS["default_all"] = (f"default, everything filled (`extrapolate=None`: {default})",
                               METHODS["default_all"][1])
-    parser.add_argument("--methods", default=",".join(m for m in DEFAULT_RUN if m != default),
-                        help="comma-separated, from: " + ", ".join(METHODS)
-                        + " (gaps left is always run: the others are compared with it)")
-    parser.add_argument("--masks", type=int, default=N_MASKS,
-                        help=f"how many masks, the first of the list (1-{len(CASES)}, "
-                        f"default {N_MASKS})")
-    parser.add_argument("--doc", default=str(DOC), help="page to write the table into ('' : none)")
-    parser.add_argument("--results", default=str(RESULTS), help="folder for the CSVs ('' : none)")
-    args = parser.parse_args(argv)
-    methods = ["gaps"] + [m for m in args.methods.split(",") if m and m != "gaps"]
-    unknown = [m for m in methods if m not in METHODS]
+    return default
+
+
+def main(args) -> int:
+    default = _labels()
+    methods = ["gaps"] + [m for m in args.methods.split(",") if m and m != "gaps" and not (
+        m == default and args.methods == ",".join(DEFAULT_RUN))]     # the default is run already
+    unknown = [m for m in methods if m not in METHODS and not m.startswith("peer:")]
     if unknown:
-        parser.error(f"unknown method(s) {', '.join(unknown)}; expected some of {', '.join(METHODS)}")
+        raise SystemExit(f"ik: unknown method(s) {', '.join(unknown)}; expected some of "
+                         f"{', '.join(METHODS)} or peer:NAME")
     if not 1 <= args.masks <= len(CASES):
-        parser.error(f"--masks: expected 1 to {len(CASES)}, found {args.masks}")
+        raise SystemExit(f"ik: --masks: expected 1 to {len(CASES)}, found {args.masks}")
     try:
         _opensim()
     except ImportError:
-        raise SystemExit("bench_ik: needs opensim (pip install opensim==4.6)") from None
-    if not (DATA / "opensim").is_dir():
-        raise SystemExit(f"bench_ik: no OpenSim models under {DATA / 'opensim'}")
-
+        raise SystemExit("ik: needs opensim (pip install opensim==4.6)") from None
+    if not (data.folder() / "opensim").is_dir():
+        raise SystemExit(f"ik: no OpenSim models under {data.folder() / 'opensim'}")
+    folder = Path(args.results) if args.results else None
+    done = Rows(folder / "ik_cases.csv" if folder else None, ("recording", "source", "seed", "method"))
+    if args.redo:
+        done.rows = [r for r in done.rows if r["method"] not in methods]
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_ik_") as tmp:
-        rows = run(methods, args.masks, Path(tmp))
+        run(methods, args.masks, Path(tmp), done)
+    keys = {(name, Path(src).stem, str(seed)) for name, src, seed in CASES[:args.masks]}
+    rows = [_typed(r) for r in done.rows if (r["recording"], r["source"], str(r["seed"])) in keys
+            and r["method"] in methods]
     summary = summarise(rows, methods)
-    command = "python scripts/bench_ik.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
-    text = (f"Generated by `OMP_NUM_THREADS={threads} {command.strip()}` at commit `{_commit()}` "
-            f"({len({(r['recording'], r['source'], r['seed']) for r in rows})} masks, "
-            f"{time.perf_counter() - start:.0f} s in all). Joint-angle RMSE against IK on the "
+    command = "python -m benchmarks ik " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    meta = {"command": f"OMP_NUM_THREADS={threads} {command.strip()}",
+            "seconds": f"{time.perf_counter() - start:.0f}"}
+    text = doc_text(rows, methods, summary, meta)
+    print()
+    print(text)
+    if folder:
+        write_csv(folder / "ik_summary.csv", summary)
+        write_csv(folder / "ik_run.csv", [meta | {"methods": ",".join(methods)}])
+    if args.doc:
+        write_doc(Path(args.doc), text)
+    return 0
+
+
+def _typed(r: dict) -> dict:
+    """A stored row with its numbers as floats (and ints for the counts)."""
+    out = {}
+    for k, v in r.items():
+        if k in ("recording", "source", "method", "max_coord", "writer", "error") or v == "":
+            out[k] = v
+        else:
+            out[k] = int(float(v)) if k in ("seed", "nan_left") else float(v)
+    return out
+
+
+def doc_text(rows: list[dict], methods: list[str], summary: list[dict], meta: dict) -> str:
+    return (f"Generated by `{meta['command']}` "
+            f"({len({(r['recording'], r['source'], r['seed']) for r in rows})} masks). "
+            "Joint-angle RMSE against IK on the "
             "complete recording, mean over masks; worst error: the largest single error of any "
             "free rotational coordinate over all masks (in brackets: hip and knee flexion); "
             "IK marker error: mean over masks and frames of IK's RMS marker error; fill s / IK s: "
@@ -489,16 +535,23 @@ def main(argv: list[str] | None = None) -> None:
             "instead.\n\n" + table(summary)
             + "\n\nPer mask: RMSE over all frames / largest single error.\n\n"
             + case_table(rows, methods))
-    print()
-    print(text)
-    if args.results:
-        from docblock import write_csv
-
-        write_csv(Path(args.results) / "ik_cases.csv", rows)
-        write_csv(Path(args.results) / "ik_summary.csv", summary)
-    if args.doc:
-        write_doc(Path(args.doc), text)
 
 
-if __name__ == "__main__":
-    main()
+def stored(folder: Path = RESULTS) -> tuple[list[dict], list[str], dict] | None:
+    """The stored rows, methods and run of the last run (None when absent)."""
+    run_rows = read_csv(folder / "ik_run.csv")
+    if not run_rows:
+        return None
+    meta = run_rows[0]
+    methods = meta["methods"].split(",")
+    rows = [_typed(r) for r in read_csv(folder / "ik_cases.csv") if r["method"] in methods]
+    return rows, methods, meta
+
+
+def doc_blocks() -> dict:
+    got = stored()
+    if got is None:
+        return {}
+    _labels()
+    rows, methods, meta = got
+    return {(DOC, "ik"): doc_text(rows, methods, summarise(rows, methods), meta)}
