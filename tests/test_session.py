@@ -63,15 +63,15 @@ def test_default_with_session(cmu85, monkeypatch):
     """Measured: alone 11.66 mm, session 7.67 (11.69 and 7.81 with two hold-out draws always,
     ``min_gaps=0``). The ``+session`` twins fit the first hold-out draw, not the later ones (the
     session's time)."""
-    from torchfill.solvers.auto import SESSION, Auto
+    from torchfill.solvers.selection.candidates import SESSION, Fits
 
     X, truth, mask, train = cmu85
-    stages, fit_all = [], Auto._fit_all
+    stages, fit_all = [], Fits.fit_all
 
     def recorded(self, names, fit_missing, stage="fit", case=None):
         stages.append((stage, [n for n in names if n.endswith(SESSION)]))
         return fit_all(self, names, fit_missing, stage, case)
-    monkeypatch.setattr(Auto, "_fit_all", recorded)
+    monkeypatch.setattr(Fits, "fit_all", recorded)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         out, std = torchfill.fill(X, extrapolate=None, training=train, return_std=True)
@@ -230,7 +230,7 @@ def test_motion_match_finds_the_trial_inside_another(recording):
     (a trial-end group gap hidden) planted at frame 1000 of cmu_85_12, moved by a metre."""
     import torch
 
-    from torchfill.solvers.auto import motion_match
+    from torchfill.solvers.selection.cross import motion_match
 
     Y = torchfill.read(recording("cmu_85_02.c3d")).points[200:500]
     seen = np.isfinite(Y).all(axis=2)

@@ -20,7 +20,7 @@ from .runtime.memory import trim_heap
 from . import windows
 from .sequence import MarkerSequence
 from .solvers import available, get_solver
-from .solvers.auto import PARTIAL
+from .solvers.selection.candidates import PARTIAL
 from .solvers.rigid import HOLDOUT_LAGS, body_size, segment_fill
 from .solvers.rigid import clear_cache as clear_rigid_cache
 from .solvers.session import TRAINING_FRAMES, spread_runs

@@ -18,8 +18,10 @@ from torchfill import gaps
 from torchfill.cli import main
 from torchfill.metrics import gap_runs, rmse, rmse_missing
 from torchfill.solvers import get_solver
-from torchfill.solvers.auto import (MAX_DRAWS, consensus, gap_kind, kind_weights,
-                                   run_geometry)
+from torchfill.solvers.selection.candidates import Fits
+from torchfill.solvers.selection.draws import MAX_DRAWS
+from torchfill.solvers.selection.kinds import gap_kind, run_geometry
+from torchfill.solvers.selection.weights import consensus, kind_weights
 
 CANDIDATES = ("pchip", "pca_train", "svt", "tucker_tnn")
 
@@ -113,17 +115,17 @@ def test_progress_reports_every_candidate_fit_and_refit():
     assert len(solver.history_) == 1 and solver.callback_ is None         # reports not kept
 
 
-def test_a_second_draw_holds_out_other_observed_samples():
+def test_a_second_draw_holds_out_other_observed_samples(monkeypatch):
     """The weights pool two hold-out draws (which shift one draw takes moves single cases by
     20-30 %): each hides the real gaps and observed samples of its own, not the first's."""
     X = _gappy()
     solver = get_solver("auto", candidates=["pchip", "spline", "svt"], min_gaps=0)
-    hidden, fit_all = [], solver._fit_all
+    hidden, fit_all = [], Fits.fit_all
 
-    def spy(names, fit_missing, stage="fit"):
+    def spy(self, names, fit_missing, stage="fit", case=None):
         hidden.append((stage, fit_missing.clone()))
-        return fit_all(names, fit_missing, stage)
-    solver._fit_all = spy
+        return fit_all(self, names, fit_missing, stage, case)
+    monkeypatch.setattr(Fits, "fit_all", spy)
     solver.fit(torch.from_numpy(X))
     missing = torch.from_numpy(np.isnan(X).any(axis=2))
     held = [m & ~missing for stage, m in hidden if stage in ("fit", "draw")]
@@ -133,17 +135,17 @@ def test_a_second_draw_holds_out_other_observed_samples():
 
 
 @pytest.mark.parametrize("min_gaps, draws", [(0, 2), (6, 2), (40, MAX_DRAWS)])
-def test_a_recording_with_few_gaps_gets_more_draws(min_gaps, draws):
+def test_a_recording_with_few_gaps_gets_more_draws(min_gaps, draws, monkeypatch):
     """A draw of a recording with few gaps holds out few (``_gappy``: three real gaps, three to
     four held out per draw), and which ones decides the weights: the draws go on, up to
     MAX_DRAWS, until ``min_gaps`` held-out gaps are pooled."""
     solver = get_solver("auto", candidates=["pchip", "spline"], min_gaps=min_gaps)
-    stages, fit_all = [], solver._fit_all
+    stages, fit_all = [], Fits.fit_all
 
-    def spy(names, fit_missing, stage="fit"):
+    def spy(self, names, fit_missing, stage="fit", case=None):
         stages.append(stage)
-        return fit_all(names, fit_missing, stage)
-    solver._fit_all = spy
+        return fit_all(self, names, fit_missing, stage, case)
+    monkeypatch.setattr(Fits, "fit_all", spy)
     solver.fit(torch.from_numpy(_gappy()))
     assert stages.count("fit") + stages.count("draw") == draws
 
@@ -292,10 +294,10 @@ def test_a_marker_never_seen_twice_in_a_row_has_the_median_speed_not_zero():
     """The error model's speed feature: the mean squared step where a marker is seen in two
     consecutive frames; a marker never seen so takes the other markers' median (unknown, not 0:
     a zero speed predicted errors of 0.3-0.6 mm for fills 24-627 mm off)."""
-    from torchfill.solvers.auto import Auto
+    from torchfill.solvers.selection.error_model import speed2
     step = torch.tensor([[1.0, 4.0, 9.0, 5.0], [3.0, 4.0, 9.0, 5.0]])
     both = torch.tensor([[True, True, True, False], [True, False, True, False]])
-    got = Auto._speed2(step, both)
+    got = speed2(step, both)
     assert got.tolist() == [2.0, 4.0, 9.0, 4.0]
 
 
@@ -303,7 +305,7 @@ def test_a_hole_in_the_segment_fill_is_joined_to_it_by_a_ramp():
     """One marker moving 5 mm a frame, a 10-frame gap: the partial candidate fills frames 1-3 and
     8-10 of it exactly (a hole at 4-7), the other everything, 10 mm off then 4 mm off: the hole gets
     the other's fill shifted by the ramp between the offsets at its sides, here the motion itself."""
-    from torchfill.solvers.auto import Auto
+    from torchfill.solvers.selection.weights import join_holes
     T = 12
     missing = torch.zeros(T, 1, dtype=torch.bool)
     missing[1:11] = True
@@ -317,7 +319,7 @@ def test_a_hole_in_the_segment_fill_is_joined_to_it_by_a_ramp():
     w = torch.stack([has, 1 - has])
     mean = (w[..., None] * torch.nan_to_num(fills)).sum(0)
     assert torch.diff(mean[:, 0, 0]).abs().max() > 12      # the step into the hole
-    out = Auto._join_holes(mean, fills, w, torch.tensor([True, False]), missing)
+    out = join_holes(mean, fills, w, torch.tensor([True, False]), missing)
     assert torch.allclose(out, truth)                         # the offsets' ramp was linear
     assert torch.equal(out[~missing], mean[~missing]) and torch.equal(out[1:4], mean[1:4])
 
@@ -342,7 +344,7 @@ def test_a_candidate_scored_on_fewer_gaps_leans_more_on_its_parent():
     """A ``+session`` twin fits the first hold-out draw only (NaN in the second draw's gaps): its
     kinds' errors are shrunk with the number of gaps it was scored on, not every gap of the kind
     (which trusted its first-draw errors as if they were two draws')."""
-    from torchfill.solvers.auto import kind_mse
+    from torchfill.solvers.selection.weights import kind_mse
     nan = float("nan")
     kinds = torch.tensor([0, 0, 0, 0, 1, 1, 1, 1])          # 0: inside, 1: at a trial end
     gap_ids = torch.arange(8)
@@ -355,7 +357,7 @@ def test_a_candidate_scored_on_fewer_gaps_leans_more_on_its_parent():
     assert torch.isclose(M[0, 1], torch.tensor((2 * 0.25 + 10 * inside) / 12, dtype=torch.float64))
 
 
-def test_a_later_window_reuses_the_first_windows_choice(recording):
+def test_a_later_window_reuses_the_first_windows_choice(recording, monkeypatch):
     """A long recording's later windows take the first window's choice (``carry()``): only the
     candidates with weight are fitted, once, on the real gaps (no hold-out rounds), and the fill
     stays close to that of a window that chooses for itself; the error estimate covers its gaps."""
@@ -370,12 +372,12 @@ def test_a_later_window_reuses_the_first_windows_choice(recording):
         choice = first.carry()["choice"]
         own = get_solver("auto").fit(X[800:])
         later = get_solver("auto", choice=choice)
-        stages, fit_all = [], later._fit_all
+        stages, fit_all = [], Fits.fit_all
 
-        def spy(names, fit_missing, stage="fit", case=None):
+        def spy(self, names, fit_missing, stage="fit", case=None):
             stages.append((stage, list(names)))
-            return fit_all(names, fit_missing, stage, case)
-        later._fit_all = spy
+            return fit_all(self, names, fit_missing, stage, case)
+        monkeypatch.setattr(Fits, "fit_all", spy)
         later.fit(X[800:])
     weighted = {n for k in first.weights_.values() for n in k}
     assert [s for s, _ in stages] == ["refit"] and set(stages[0][1]) == weighted
@@ -389,7 +391,7 @@ def test_a_later_window_reuses_the_first_windows_choice(recording):
     np.testing.assert_array_equal(later.transform(X[800:]).numpy()[~m], P[800:][~m])
 
 
-def test_a_later_window_that_would_try_other_candidates_chooses_for_itself():
+def test_a_later_window_that_would_try_other_candidates_chooses_for_itself(monkeypatch):
     """The first window's choice holds only where a window would try the same candidates: one
     whose long interior gaps bring in ``tucker_tnn`` (absent from a first window of trial-end
     gaps) runs its own hold-out."""
@@ -404,11 +406,11 @@ def test_a_later_window_that_would_try_other_candidates_chooses_for_itself():
         choice = get_solver("auto").fit(torch.from_numpy(first)).carry()["choice"]
         assert "tucker_tnn" not in choice["tried"]
         solver = get_solver("auto", choice=choice)
-        stages, fit_all = [], solver._fit_all
+        stages, fit_all = [], Fits.fit_all
 
-        def spy(names, fit_missing, stage="fit", case=None):
+        def spy(self, names, fit_missing, stage="fit", case=None):
             stages.append(stage)
-            return fit_all(names, fit_missing, stage, case)
-        solver._fit_all = spy
+            return fit_all(self, names, fit_missing, stage, case)
+        monkeypatch.setattr(Fits, "fit_all", spy)
         solver.fit(torch.from_numpy(later))
     assert stages[:2] == ["fit", "draw"] and "tucker_tnn" in solver.scores_

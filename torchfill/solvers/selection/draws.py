@@ -1,0 +1,97 @@
+"""The default's hold-out draws: observed samples hidden like the recording's own gaps, each
+candidate's fill of them through the post-step, and its squared errors there per gap kind. Why
+two draws and more for a recording with few gaps: docs/real-gaps.md."""
+from __future__ import annotations
+
+import torch
+
+from ..holdout import mirrored_edge_holdout, shifted_gap_holdout
+from .candidates import PARTIAL, SESSION, Fits
+from .kinds import gap_index, sample_kinds
+
+Tensor = torch.Tensor
+
+#: Most hold-out draws that ``min_gaps`` asks for.
+MAX_DRAWS = 4
+#: A ``+session`` twin's place in a later hold-out draw: not fitted there, its errors NaN, so
+#: its gap kinds' mean squared errors are those of the first draw alone (the twins fit the
+#: training trials' frames too, most of a session's time).
+NOT_DRAWN = RuntimeError("not fitted in this draw")
+
+
+def holdout(seen: Tensor, generator: torch.Generator) -> Tensor:
+    """Held-out (T, J) samples of the observed ``seen`` (T, J): mirrored trial-end gaps, then the
+    shifted gap pattern (drawn with ``generator``), each added to a marker only while it keeps
+    half of its observed samples (and two at least). Part by part, not the union at once: a
+    marker missing its last quarter would get both a mirrored and a shifted copy of that gap,
+    half its samples together, and drop out of the hold-out altogether."""
+    Omega3 = seen[..., None]
+    V = torch.zeros_like(seen)
+    n_seen = seen.sum(dim=0)
+    shifted = shifted_gap_holdout(Omega3, generator)               # the generator's draw first
+    for part in (mirrored_edge_holdout(Omega3), shifted):
+        if part is None:
+            continue
+        W = V | part[..., 0]
+        n = W.sum(dim=0)
+        V = torch.where((n <= 0.5 * n_seen) & (n_seen - n >= 2), W, V)
+    return V
+
+
+def scored(fits: Fits, names: list[str], outs, missing: Tensor, Xt: Tensor, V: Tensor
+           ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor]:
+    """The candidates' fits ``outs`` (in ``names``' order; an exception: the candidate
+    failed) of ``Xt`` (T, J, D) with ``missing`` hidden, through the post-step and scored on
+    the held-out samples ``V``: their squared errors (C, N), kinds (N,) and gap ids (N,) on
+    the samples they fill themselves (not rigid donors); and the squared errors on all of
+    ``V`` (C, N_V). A failed candidate's errors are NaN."""
+    C = len(names)
+    fills = torch.full((C, *Xt.shape), float("nan"), dtype=fits.M.dtype, device=V.device)
+    for c, out in enumerate(outs):
+        if not isinstance(out, Exception):
+            fills[c] = out
+    ok = [c for c in range(C) if bool(torch.isfinite(fills[c]).any())]
+    fills[ok], donor = fits.constrain(fills[ok], missing)
+    kinds = sample_kinds([n in PARTIAL for n in names], fills, missing, Xt)[-1]
+    err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
+    decide = ~donor[V]
+    return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
+
+
+def first_scores(fills: Tensor, donor: Tensor, kinds: Tensor, Xt: Tensor, V: Tensor
+                 ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor]:
+    """The first draw's scores (as :func:`scored`) from its constrained ``fills`` (C, T, J, D),
+    the samples rigid donors fill and the samples' kinds."""
+    err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]                # (C, N), NaN: not filled
+    decide = ~donor[V]                      # held-out samples the candidates fill themselves
+    return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
+
+
+def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torch.Generator
+         ) -> tuple[Tensor, Tensor, Tensor]:
+    """Another hold-out draw, scored like the first (:func:`scored`; none when the draw
+    repeats ``V0``). The ``+session`` twins are not fitted again (see ``NOT_DRAWN``)."""
+    V = holdout(seen, generator)
+    if bool((V == V0).all()):
+        empty = torch.empty(0, dtype=torch.long, device=V.device)
+        return torch.empty(len(names), 0, dtype=fits.M.dtype, device=V.device), empty, empty
+    fit_missing = ~seen | V
+    Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
+    run = [name for name in names if not name.endswith(SESSION)]
+    fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw")))
+    outs = [fitted.get(name, NOT_DRAWN) for name in names]
+    return scored(fits, names, outs, fit_missing, Xt, V)[0]
+
+
+def pooled(first: tuple, fits: Fits, names: list[str], seen: Tensor, V: Tensor,
+           generator: torch.Generator, draws: int, min_gaps: int
+           ) -> tuple[Tensor, Tensor, Tensor]:
+    """The first draw's scores ``first`` and those of more draws, until ``draws`` are pooled and
+    (up to ``MAX_DRAWS``) they hold out ``min_gaps`` gaps: the squared errors (C, N), kinds (N,)
+    and gap ids (N,; apart between the draws)."""
+    pool = [first]
+    while len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
+            int(p[2].unique().numel()) for p in pool) < min_gaps):
+        pool.append(draw(fits, names, seen, V, generator))
+    return (torch.cat([p[0] for p in pool], dim=1), torch.cat([p[1] for p in pool]),
+            torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pool)]))
