@@ -355,3 +355,79 @@ def test_alone_names_uncertain_fills_of_markers_whose_segment_mates_are_never_ob
     assert np.array_equal(qc.alone(present, missing, std * 1e-3, segments, units="m"), expected)
     expected[3, 0] = True                     # 6.9 m is above 8 mm
     assert np.array_equal(qc.alone(present, missing, std, segments, units="m"), expected)
+
+
+def test_drop_rejected_leaves_only_the_rejected_fills_nan():
+    X = body()
+    gappy = X.copy()
+    gappy[100:140, 1] = np.nan            # filled 600 mm off: reject
+    gappy[200:220, 2] = np.nan            # filled exactly: ok
+    gappy[:40, 5] = np.nan                # left unfilled: reject, nothing to drop
+    filled = X.copy()
+    filled[120:140, 1] += 600.0
+    filled[:40, 5] = np.nan
+    std = np.where(np.isnan(gappy).any(axis=2) & np.isfinite(filled).all(axis=2), 1.0, np.nan)
+    rows = qc.gap_table(gappy, filled, 100.0, [f"M{j}" for j in range(6)], std, units="mm")
+    F, S, dropped = qc.drop_rejected(filled, rows, std)
+    assert [(r["marker"], r["start"]) for r in dropped] == [("M1", 100)]
+    assert np.isnan(F[100:140, 1]).all() and np.isnan(S[100:140, 1]).all()
+    keep = np.ones(X.shape[:2], dtype=bool)
+    keep[100:140, 1] = False
+    assert np.array_equal(F[keep], filled[keep], equal_nan=True)         # the rest bit for bit
+    assert np.array_equal(S[keep], std[keep], equal_nan=True)
+
+
+def test_fill_rejected_drop_leaves_the_rejected_gaps_unfilled_and_says_so(tmp_path, capsys):
+    X = body()
+    gappy = X.copy()
+    gappy[100:160, 1] = np.nan            # a rotating rigid body: a straight line is far off
+    gappy[200:203, 2] = np.nan
+    src = tmp_path / "a.npz"
+    np.savez(src, points=gappy, labels=np.array([f"M{j}" for j in range(6)]), rate=100.0)
+    args = ["-m", "linear", "--no-constraints", "--std", str(tmp_path / "s.csv"), "-q"]
+    assert main(["fill", str(src), "-o", str(tmp_path / "keep.npz"), *args]) == 0
+    assert main(["qc", str(src), str(tmp_path / "keep.npz"), "--std", str(tmp_path / "s.csv"),
+                 "-m", "linear", "--json", "-", "-o", str(tmp_path / "k.html"), "-q"]) == 0
+    kept = json.loads(capsys.readouterr().out)
+    rejected = [r for r in kept if r["verdict"] == "reject"]
+    assert [(r["marker"], r["first_frame"]) for r in rejected] == [("M1", 100)]
+    assert main(["fill", str(src), "-o", str(tmp_path / "drop.npz"), "--rejected", "drop",
+                 *args[:-3], "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "60 filled sample(s) of 1 gap(s) the qc verdict rejects left NaN (M1;" in err
+    keep, drop = (torchfill.read(tmp_path / n).points for n in ("keep.npz", "drop.npz"))
+    assert np.isnan(drop[100:160, 1]).all()
+    rest = np.ones(X.shape[:2], dtype=bool)
+    rest[100:160, 1] = False
+    assert np.array_equal(drop[rest], keep[rest])
+
+
+def test_qc_finds_the_estimate_the_default_fill_wrote_beside_its_output(walk, tmp_path, capsys):
+    """``fill`` (default method) writes OUT.EXT.std.csv; ``qc IN OUT`` then gives the verdicts of
+    ``qc --std``, says where the estimate came from, and ignores one older than the fill."""
+    X = walk(200, 6, seed=1)
+    X[60:75, 2] = np.nan
+    X[120:124, 4] = np.nan
+    src, out = tmp_path / "a.npz", tmp_path / "a_filled.npz"
+    np.savez(src, points=X, labels=np.array([f"M{j}" for j in range(6)]), rate=100.0)
+    assert main(["fill", str(src), "-o", str(out), "-q"]) == 0
+    side = tmp_path / "a_filled.npz.std.csv"
+    assert side.is_file()
+    capsys.readouterr()
+    report = ["-o", str(tmp_path / "r.html")]
+    assert main(["qc", str(src), str(out), *report]) == 0
+    text = capsys.readouterr().out
+    assert f"estimate: {side} (written by 'torchfill fill' beside {out})" in text
+    assert "no error estimate given" not in text
+    assert main(["qc", str(src), str(out), "--json", "-", *report, "-q"]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert main(["qc", str(src), str(out), "--std", str(side), "--json", "-", *report, "-q"]) == 0
+    assert found == json.loads(capsys.readouterr().out)
+    assert all(r["est_rmse"] is not None for r in found)
+    assert main(["fill", str(src), "-o", str(out), "-m", "pchip", "-q"]) == 0     # no estimate
+    capsys.readouterr()
+    assert main(["qc", str(src), str(out), *report]) == 0
+    text = capsys.readouterr().out
+    assert f"estimate: none: {side} is older than {out}" in text
+    assert main(["fill", str(src), "-o", str(tmp_path / "b.npz"), "--std", "none", "-q"]) == 0
+    assert not (tmp_path / "b.npz.std.csv").exists()

@@ -38,6 +38,8 @@ class Job:
     read_options: dict = field(default_factory=dict)
     #: training recordings already read (the other trials of a ``--session``: see :func:`session`)
     session: tuple = ()
+    #: the gaps the qc verdict rejects: "keep" them, or "drop" them (see :func:`drop_rejected`)
+    rejected: str = "keep"
 
 
 def expand(items: list[str]) -> list[Path]:
@@ -109,6 +111,32 @@ def qc_rows(seq, filled, std=None, method: str | None = None) -> list[dict]:
                         prior=seq.meta.get("filled"))
 
 
+def drop_rejected(seq, filled, method: str | None = None):
+    """``(filled, rows)``: the fill with the samples of the gaps its qc verdict rejects left NaN
+    (:func:`torchfill.qc.drop_rejected`; one warning counts and names them), and the verdicts of
+    the fill returned. ``filled.meta["std"]`` (the fill's estimate) is used and kept in step."""
+    import numpy as np
+
+    from . import qc
+    from .filling import UnfilledWarning
+
+    rows = qc_rows(seq, filled, filled.meta.get("std"), method)
+    F, S, dropped = qc.drop_rejected(filled.points, rows, filled.meta.get("std"))
+    if not dropped:
+        return filled, rows
+    out = filled.with_points(F)
+    if S is not None:
+        out.meta["std"] = S
+    if out.meta.get("filled") is not None:
+        out.meta["filled"] = np.asarray(out.meta["filled"], dtype=bool) & np.isfinite(F).all(axis=2)
+    count = sum(r["filled_frames"] for r in dropped)
+    names = sorted({r["marker"] for r in dropped})
+    warnings.warn(f"{count} filled sample(s) of {len(dropped)} gap(s) the qc verdict rejects "
+                  f"left NaN ({', '.join(names[:8])}{' ...' if len(names) > 8 else ''}; "
+                  "rejected='keep' writes them)", UnfilledWarning, stacklevel=2)
+    return out, qc_rows(seq, out, S, method)
+
+
 def write_report(seq, filled, path, title: str, rows=None, plan=None, *, std=None,
                  method: str | None = None) -> None:
     """The qc HTML report of a fill, through the run's guarded writer ``plan``."""
@@ -153,10 +181,12 @@ def fill_file(job: Job) -> dict:
             if job.training or job.session:
                 params["training"] = [*job.session, *(torchfill.read(p) for p in job.training)]
             plan.confirm_inputs()
-            want_std = bool(job.std or job.report)          # the qc verdict uses it
+            want_std = bool(job.std or job.report or job.rejected == "drop")   # qc uses it
             out = torchfill.fill(seq, job.method, max_gap=job.max_gap,
                                  return_std=want_std, **params)
             out = out[0] if want_std else out
+            if job.rejected == "drop":
+                out, _ = drop_rejected(seq, out, job.method or torchfill.default_method())
             plan.write_sequence(out, job.output)
             row["outputs"].append(job.output)
             if job.std:

@@ -21,7 +21,7 @@ def _cmd_fill_batch(args) -> int:
     from tqdm import tqdm
 
     from torchfill import batch
-    from torchfill.io.outputs import Outputs, make_folder
+    from torchfill.io.outputs import Outputs, estimate_path, make_folder
 
     if args.output:
         raise ValueError("-o/--output names one file; give --out-dir DIR for several inputs")
@@ -36,9 +36,12 @@ def _cmd_fill_batch(args) -> int:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
     method, options = _fill_options(args, None)
     _side_check(args.report, "--report")
-    _side_check(args.std, "--std")
+    if args.std and args.std.lower() == "none":
+        args.std = ""                                   # no estimate file, not even beside
+    _side_check(args.std or None, "--std")
     out_dir = make_folder(args.out_dir)
-    side = {"report": _side_folder(args.report, "--report"), "std": _side_folder(args.std, "--std")}
+    side = {"report": _side_folder(args.report, "--report"),
+            "std": _side_folder(args.std or None, "--std")}
     options_of = {src: _pose_options(args, src) for src in inputs}
     jobs = []
     with Outputs() as plan:                           # the whole batch checked before any work
@@ -53,12 +56,15 @@ def _cmd_fill_batch(args) -> int:
             plan.add_output(dst, "output", folder=src.is_dir(), hint="choose another --out-dir")
             report, std = (batch.side_name(side[k], src, k) if side[k] else None
                            for k in ("report", "std"))
+            if args.std is None and method == "auto":       # its estimate comes with the fill
+                std = estimate_path(dst)
             for path, what in ((report, "report"), (std, "--std file")):
                 if path is not None:
                     plan.add_output(path, what)
             jobs.append(batch.Job(str(src), str(dst), method, options, args.max_gap,
                                   tuple(args.training or ()), report=report and str(report),
-                                  std=std and str(std), read_options=options_of[src]))
+                                  std=std and str(std), read_options=options_of[src],
+                                  rejected=args.rejected or "keep"))
     if args.session:        # the batch's other files of each marker set as training, read once
         pool = batch.session(inputs, [options_of[src] for src in inputs])
         jobs = [dataclasses.replace(job, session=pool.get(src, ())) for job, src in zip(jobs, inputs)]

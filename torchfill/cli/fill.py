@@ -33,18 +33,25 @@ def _cmd_fill(args) -> int:
         plan.confirm_inputs()
         n_missing = int(seq.mask.sum())
         _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
-        want_std = bool(args.std or args.report or args.report_json)   # the qc verdict uses it
+        std_path = _std_path(args, out_path, method)
+        want_std = bool(std_path or args.report or args.report_json
+                        or args.rejected == "drop")            # the qc verdict uses it
         with _naming(src):
             filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
                                     return_std=want_std, **options)
         filled = filled[0] if want_std else filled
+        rows = None
+        if args.rejected == "drop":
+            from torchfill import batch
+            filled, rows = batch.drop_rejected(seq, filled, method)
         plan.write_sequence(filled, out_path, backup=backup)
         written = [out_path]
-        if args.std:
-            _write_std(filled, Path(args.std), plan)
-            written.append(args.std)
+        if std_path:
+            _write_std(filled, std_path, plan)
+            written.append(std_path)
         if args.report or args.report_json:
-            rows = _qc_rows(seq, filled, filled.meta.get("std"), method)
+            if rows is None:
+                rows = _qc_rows(seq, filled, filled.meta.get("std"), method)
             if args.report:
                 _write_report(seq, filled, Path(args.report), str(src), rows, plan=plan)
                 written.append(args.report)
@@ -109,9 +116,10 @@ def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
                                          "original is kept as NAME.orig.EXT)")
     if backup is not None:
         plan.add_output(backup, "backup")
-    if args.std:
-        _check_suffix(Path(args.std), ".csv", "--std")
-        plan.add_output(args.std, "--std file")
+    std = _std_path(args, out, None)
+    if std:
+        _check_suffix(std, ".csv", "--std")
+        plan.add_output(std, "--std file")
     if args.report:
         _check_suffix(Path(args.report), ".html", "--report", REPORT_ALSO)
         plan.add_output(args.report, "report")
@@ -119,6 +127,19 @@ def _plan_paths(args, src: Path, plan) -> tuple[Path, Path | None]:
         _check_suffix(Path(args.report_json), ".json", "--report-json")
         plan.add_output(args.report_json, "--report-json file")
     return out, backup
+
+
+def _std_path(args, out: Path, method: str | None) -> Path | None:
+    """Where the error estimate goes: ``--std``, else -- for the default method, whose estimate
+    comes with its fill -- beside the output (:func:`torchfill.io.outputs.estimate_path`);
+    None: not written (``--std none``, another method without ``--std``)."""
+    import torchfill
+    from torchfill.io.outputs import estimate_path
+
+    if args.std:
+        return None if args.std.lower() == "none" else Path(args.std)
+    method = method or args.method or torchfill.default_method()
+    return estimate_path(out) if method == "auto" else None
 
 
 def _write_std(seq, path: Path, plan) -> None:

@@ -59,8 +59,14 @@ def _add_fill(sub) -> None:
     p.add_argument("--dtype", choices=("float32", "float64"),
                    help="what the method computes in (default: its own, float32 for tucker and "
                         "tucker_tnn); observed samples are written as read either way")
-    p.add_argument("--std", metavar="OUT.csv", help="also write the estimated error std per filled "
-                   "sample (frames x markers, data units, NaN where observed)")
+    p.add_argument("--std", metavar="OUT.csv", help="write the estimated error std per filled "
+                   "sample here (frames x markers, data units, NaN where observed); by default "
+                   "the default method's estimate goes beside the output as OUT.EXT.std.csv, "
+                   "where 'torchfill qc' finds it; 'none': not written")
+    p.add_argument("--rejected", choices=("keep", "drop"), default=None,
+                   help="gaps whose fill the qc verdict rejects: 'drop' leaves them NaN (counted "
+                        "and named), 'keep' writes them (their estimate is in the std file); "
+                        "default: keep")
     p.add_argument("--extrapolate", metavar="SECONDS",
                    help="seconds a gap at a trial end may be extrapolated in time, in frames "
                         "too empty for a spatial fill (default 0.25); with a limit, markers never "
@@ -95,7 +101,9 @@ def _add_qc(sub) -> None:
                    "per gap: marker, first_frame, last_frame (the file's numbering), verdict, "
                    "est_rmse (file units), reasons, segment ('-': print it instead of the table)")
     p.add_argument("--std", metavar="STD.csv",
-                   help="the fill's error estimate ('fill --std' output): verdicts use it")
+                   help="the fill's error estimate ('fill --std' output): verdicts use it "
+                        "(default: FILLED.std.csv beside FILLED, as 'fill' writes it, when it is "
+                        "not older than FILLED)")
     p.add_argument("-m", "--method", help="the method that made FILLED (default: the default "
                    "method); a spatial method's trial-end fills in frames with enough markers "
                    "seen do not count as extrapolated in time")

@@ -24,8 +24,9 @@ def _cmd_qc(args) -> int:
         for path in (args.input, args.filled):
             _check_input(Path(path))
             plan.add_input(path)
-        if args.std:
-            plan.add_input(args.std)
+        std_path, source = _estimate_source(args)
+        if std_path is not None:
+            plan.add_input(std_path)
         plan.add_output(report, "qc report", hint="give another -o")
         if to_file:
             plan.add_output(args.json, "--json file")
@@ -34,11 +35,14 @@ def _cmd_qc(args) -> int:
         if filled.points.shape != seq.points.shape:
             raise ValueError(f"{args.filled}: shape {filled.points.shape} differs from "
                              f"{args.input}'s {seq.points.shape}")
-        std = _read_std(Path(args.std), seq) if args.std else filled.meta.get("std")
+        std = _read_std(std_path, seq) if std_path is not None else filled.meta.get("std")
+        if std_path is None and std is not None:
+            source = f"the error estimate stored in {args.filled}"
         rows = _qc_rows(seq, filled, std, args.method or torchfill.default_method())
         if args.json == "-":
             print(json.dumps(qc.to_json(rows), indent=1))
         else:
+            print(f"estimate: {source}")
             print(qc.format_table(rows, seq.units))
         _write_report(seq, filled, report, str(args.filled), rows, std, plan=plan)
         if to_file:
@@ -46,6 +50,25 @@ def _cmd_qc(args) -> int:
     if not args.quiet:
         print(f"{qc.summary(rows)} -> {report}", file=sys.stderr if args.json == "-" else sys.stdout)
     return 0
+
+
+def _estimate_source(args) -> tuple[Path | None, str]:
+    """The std file the verdicts use and a line saying where it came from: ``--std``, else the
+    file 'fill' writes beside FILLED when it is not older than FILLED (a later fill of FILLED
+    without an estimate leaves an older one behind, which is not this fill's)."""
+    from torchfill.io.outputs import estimate_path
+
+    if args.std:
+        return Path(args.std), f"{args.std} (--std)"
+    side = estimate_path(args.filled)
+    if not side.is_file():
+        return None, (f"none found ({side} is absent): verdicts from the plausibility tests only; "
+                      "'torchfill fill' with the default method writes it beside its output")
+    filled = Path(args.filled)
+    if not filled.is_dir() and side.stat().st_mtime_ns < filled.stat().st_mtime_ns:
+        return None, (f"none: {side} is older than {args.filled} (not this fill's), not used; "
+                      "verdicts from the plausibility tests only")
+    return side, f"{side} (written by 'torchfill fill' beside {args.filled})"
 
 
 def _frame0(seq) -> int:

@@ -417,6 +417,13 @@ def _copy_aside(path: Path, backup: Path) -> None:
         shutil.copy2(path, backup)
 
 
+def estimate_path(output) -> Path:
+    """Where a fill's error estimate goes beside its output ``OUT.EXT``: ``OUT.EXT.std.csv``
+    (``torchfill qc`` looks for it there)."""
+    output = Path(output)
+    return output.with_name(output.name + ".std.csv")
+
+
 def source_stamp(path) -> tuple:
     """The fingerprint :func:`torchfill.read` keeps of the file it read (``meta["source_stamp"]``)."""
     return _stamp(Path(path))
@@ -512,4 +519,4 @@ def _renamed(message, tmp: Path, path: Path) -> str:
     return str(message).replace(str(tmp), str(path))
 
 
-__all__ = ["Outputs", "check_folder", "make_folder", "sweep"]
+__all__ = ["Outputs", "check_folder", "estimate_path", "make_folder", "sweep"]

@@ -380,6 +380,21 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     return rows
 
 
+def drop_rejected(filled, rows: list[dict], std=None):
+    """``(filled, std, dropped)``: copies of the fill ``filled`` (T, J, D) and its ``std``
+    (T, J, or None) with the filled samples of every ``reject`` gap of ``rows`` (see
+    :func:`gap_table`) left NaN, and the rows of the gaps so emptied. Only samples that were
+    missing change: a gap's frames hold no observed sample of its marker."""
+    F = np.array(filled, dtype=np.float64, copy=True)
+    S = None if std is None else np.array(std, dtype=np.float64, copy=True)
+    dropped = [r for r in rows if r["verdict"] == "reject" and r["filled_frames"] > 0]
+    for r in dropped:
+        F[r["start"]:r["stop"], r["j"]] = np.nan
+        if S is not None:
+            S[r["start"]:r["stop"], r["j"]] = np.nan
+    return F, S, dropped
+
+
 def table_thresholds(rows: list[dict]) -> Thresholds | None:
     return rows[0]["thresholds"] if rows else None
 
