@@ -185,7 +185,7 @@ class PCAGloersen(Solver):
     }
 
     def _initialize(self) -> None:
-        self.X_ = self.interp_start()
+        """Nothing to set up: ``step()`` makes the whole fill (see :meth:`_estimate`)."""
 
     def step(self) -> dict[str, float]:
         missing = ~self.Omega_.all(dim=-1)
@@ -199,4 +199,6 @@ class PCAGloersen(Solver):
         return {"delta": 0.0}
 
     def _estimate(self) -> Tensor:
+        if "X_" not in self._buffers:       # forward() before step(): the interpolation start
+            self.X_ = self.interp_start()
         return self.X_

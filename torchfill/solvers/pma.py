@@ -472,7 +472,6 @@ class _Tits(Solver):
 
     def _initialize(self) -> None:
         self.require_3d("the local models work in the frame of three markers")
-        self.X_ = self.interp_start()
 
     def step(self) -> dict[str, float]:
         missing = ~self.Omega_.all(dim=-1)
@@ -485,6 +484,8 @@ class _Tits(Solver):
         return {"delta": 0.0}
 
     def _estimate(self) -> Tensor:
+        if "X_" not in self._buffers:       # forward() before step(): the interpolation start
+            self.X_ = self.interp_start()
         return self.X_
 
 
