@@ -431,3 +431,19 @@ def test_qc_finds_the_estimate_the_default_fill_wrote_beside_its_output(walk, tm
     assert f"estimate: none: {side} is older than {out}" in text
     assert main(["fill", str(src), "-o", str(tmp_path / "b.npz"), "--std", "none", "-q"]) == 0
     assert not (tmp_path / "b.npz.std.csv").exists()
+
+
+def test_qc_counts_unfilled_samples_as_the_fill_does(tmp_path, capsys):
+    """One count of unfilled samples: a marker never observed is counted by qc too."""
+    X = body()
+    X[250:, 1] = np.nan                   # a trial end beyond the extrapolation limit
+    X[:, 3] = np.nan                      # never observed
+    src = tmp_path / "a.npz"
+    np.savez(src, points=X, labels=np.array([f"M{j}" for j in range(6)]), rate=100.0)
+    out = tmp_path / "b.npz"
+    assert main(["fill", str(src), "-o", str(out), "-m", "linear", "--extrapolate", "0.1"]) == 0
+    said = capsys.readouterr()
+    left = int(torchfill.read(out).mask.sum())
+    assert left >= 300 and f"{left} left unfilled" in said.out
+    assert main(["qc", str(src), str(out), "-o", str(tmp_path / "r.html"), "-m", "linear"]) == 0
+    assert f"; {left} missing sample(s) left unfilled" in capsys.readouterr().out

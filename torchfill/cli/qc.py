@@ -48,7 +48,8 @@ def _cmd_qc(args) -> int:
         if to_file:
             _write_json(rows, Path(args.json), plan)
     if not args.quiet:
-        print(f"{qc.summary(rows)} -> {report}", file=sys.stderr if args.json == "-" else sys.stdout)
+        print(f"{qc.summary(rows, qc.unfilled_samples(filled.points))} -> {report}",
+              file=sys.stderr if args.json == "-" else sys.stdout)
     return 0
 
 

@@ -5,15 +5,17 @@ reasons (``torchfill qc``, ``fill --report``).
 estimate; the tests and their constants are described there); :mod:`torchfill.qc.report` gives
 the verdicts as text, JSON and a self-contained HTML page.
 """
-from .report import format_table, html_report, summary, thresholds_json, to_json
+from .report import (format_table, html_report, summary, thresholds_json, to_json,
+                     unfilled_samples)
 from .verdicts import (AGREE_MM, BODY_SCALE_MM, DISAGREE_MM, EST_CHECK_MM, EST_REJECT_MM,
                        EST_RELATIVE, EXTRAPOLATED_SECONDS, RIGID_CHECK, RIGID_REJECT,
                        SHORT_SECONDS, STEP_AT_CAP, STEP_ROUNDING, VERDICTS, Thresholds, alone,
-                       drop_rejected, est_rmse, gap_table, per_mm, rigid_partners, table_thresholds, thresholds,
-                       untested, verdict)
+                       drop_rejected, est_rmse, gap_table, per_mm, rigid_partners,
+                       table_thresholds, thresholds, untested, verdict)
 
 __all__ = ["AGREE_MM", "BODY_SCALE_MM", "DISAGREE_MM", "EST_CHECK_MM", "EST_REJECT_MM",
            "EST_RELATIVE", "EXTRAPOLATED_SECONDS", "RIGID_CHECK", "RIGID_REJECT", "SHORT_SECONDS",
-           "STEP_AT_CAP", "STEP_ROUNDING", "VERDICTS", "Thresholds", "alone", "drop_rejected", "est_rmse",
-           "format_table", "gap_table", "html_report", "per_mm", "rigid_partners", "summary",
-           "table_thresholds", "thresholds", "thresholds_json", "to_json", "untested", "verdict"]
+           "STEP_AT_CAP", "STEP_ROUNDING", "VERDICTS", "Thresholds", "alone", "drop_rejected",
+           "est_rmse", "format_table", "gap_table", "html_report", "per_mm", "rigid_partners", "summary",
+           "table_thresholds", "thresholds", "thresholds_json", "to_json", "unfilled_samples",
+           "untested", "verdict"]

@@ -36,14 +36,22 @@ def _fmt(v, digits: int = 3) -> str:
     return f"{v:.{digits}g}" if isinstance(v, float) else str(v)
 
 
-def summary(rows: list[dict]) -> str:
-    """``N gaps: a ok, b check, c reject`` (+ unfilled)."""
+def summary(rows: list[dict], unfilled: int | None = None) -> str:
+    """``N gaps: a ok, b check, c reject`` (+ unfilled). ``unfilled``: the missing samples the
+    fill left NaN, markers never observed included (:func:`unfilled_samples`; the count
+    ``torchfill fill`` gives); default: those of the gaps in ``rows``."""
     n = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
     empty = sum(r["filled_frames"] == 0 for r in rows)
-    samples = sum(r["unfilled"] for r in rows)
+    samples = sum(r["unfilled"] for r in rows) if unfilled is None else unfilled
     return (f"{len(rows)} gaps: {n['ok']} ok, {n['check']} check, {n['reject']} reject"
             + (f" ({empty} left unfilled)" if empty else "")
             + (f"; {samples} missing sample(s) left unfilled" if samples else ""))
+
+
+def unfilled_samples(filled) -> int:
+    """Samples NaN in the fill ``filled`` (T, J, D): the missing samples it left unfilled (observed
+    ones are finite), counted as ``torchfill fill`` counts them."""
+    return int((~np.isfinite(np.asarray(filled, dtype=np.float64)).all(axis=2)).sum())
 
 
 def format_table(rows: list[dict], units: str = "", *, has_std: bool | None = None) -> str:
@@ -317,7 +325,8 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
              f"<h1>torchfill qc: {esc(title)}</h1>"]
     f1 = first_frame + T - 1
     parts.append(f"<p>{T} frames (numbered {first_frame}-{f1} as in the file), {J} markers, rate "
-                 f"{_fmt(rate) or 'unknown'} Hz, units {u}. <b>{esc(summary(rows))}</b>; "
+                 f"{_fmt(rate) or 'unknown'} Hz, units {u}. <b>{esc(summary(rows, unfilled_samples(F)))}"
+                 "</b>; "
                  f"{int((~observed.any(axis=1)).sum())} frame(s) with no marker observed.</p>")
     th = table_thresholds(rows)
     if th is not None:
