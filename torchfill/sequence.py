@@ -1,6 +1,8 @@
-"""The one in-memory form of a recording: :class:`MarkerSequence`."""
+"""The one in-memory form of a recording: :class:`MarkerSequence`; its units and axes."""
 from __future__ import annotations
 
+import difflib
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -81,7 +83,7 @@ class MarkerSequence:
 
     def select(self, markers) -> "MarkerSequence":
         """A copy with only the given marker indices (or labels)."""
-        index = [self.labels.index(m) if isinstance(m, str) else int(m) for m in markers]
+        index = [self._marker(m) for m in markers]
         meta = dict(self.meta)
         if "point_index" in meta:
             meta["point_index"] = [meta["point_index"][i] for i in index]
@@ -91,6 +93,53 @@ class MarkerSequence:
             meta["confidence"] = np.asarray(meta["confidence"])[:, index]
         return replace(self, points=self.points[:, index].copy(),
                        labels=[self.labels[i] for i in index], meta=meta)
+
+    def _marker(self, m) -> int:
+        """The index of marker ``m`` (a label, or an index); one-line ``KeyError`` otherwise."""
+        if isinstance(m, str):
+            if m in self.labels:
+                return self.labels.index(m)
+            short = self.short_labels()
+            if short.count(m) == 1:
+                return short.index(m)
+            near = difflib.get_close_matches(m, self.labels, n=1)
+            raise KeyError(f"no marker {m!r}" + (f" (did you mean {near[0]!r}?)" if near else
+                                                  f"; the labels are {self.labels[:8]}..."))
+        if isinstance(m, (bool, np.bool_)) or not isinstance(m, (int, np.integer)):
+            raise KeyError(f"markers are chosen by label or index, found {m!r}")
+        if not -self.n_markers <= int(m) < self.n_markers:
+            raise KeyError(f"marker index {int(m)} out of range for {self.n_markers} markers")
+        return int(m) % self.n_markers
+
+    def __getitem__(self, key) -> "MarkerSequence":
+        """A copy of some frames and/or markers: ``seq[100:200]`` (frames), ``seq["LASI"]`` or
+        ``seq[["LASI", "RASI"]]`` (markers by label), ``seq[:100, ["LASI", "RASI"]]`` (both).
+        Frames are a slice with step 1 (``first_frame`` follows it) or indices; per-frame
+        ``meta`` arrays (``filled``, ``time``, ...) are cut alike. A cut in frames is written as
+        a fresh file (``source`` None): the source's other frames cannot be kept."""
+        frames, markers = (key if isinstance(key, tuple) and len(key) == 2 else
+                           (key, None) if not _labels_key(key) else (slice(None), key))
+        out = self if markers is None else self.select(
+            [markers] if isinstance(markers, (str, int, np.integer)) else markers)
+        return out._frames(frames)
+
+    def _frames(self, key) -> "MarkerSequence":
+        T = self.n_frames
+        if isinstance(key, slice):
+            start, stop, step = key.indices(T)
+            if step != 1:
+                raise IndexError(f"frames are sliced with step 1, found step {step} "
+                                 "(seq.points[::step] gives the array)")
+            index, first = np.arange(start, max(start, stop)), self.first_frame + start
+        else:
+            index = np.arange(T)[np.asarray(key)].reshape(-1)
+            first = self.first_frame + (int(index[0]) if index.size else 0)
+        if index.size == T and (index == np.arange(T)).all():
+            return self
+        meta = {k: (v[index] if isinstance(v, np.ndarray) and v.ndim and len(v) == T else v)
+                for k, v in self.meta.items()}
+        return replace(self, points=self.points[index].copy(), meta=meta, first_frame=first,
+                       source=None)
 
     def duplicates(self) -> dict[str, list[int]]:
         """Labels that name more than one marker, with their indices."""
@@ -114,6 +163,22 @@ class MarkerSequence:
         drop = {j for idx in dups.values() for j in idx[1:]}
         keep = [j for j in range(self.n_markers) if j not in drop]
         return self.with_points(points).select(keep)
+
+    # -- units and axes ------------------------------------------------------------------------
+    def in_units(self, units: str) -> "MarkerSequence":
+        """A copy in ``units`` ("m", "cm" or "mm"): every coordinate scaled, nothing else."""
+        k = unit_power(self.units, units)
+        out = self.with_points(self.points * 10.0 ** k if k >= 0 else self.points / 10.0 ** -k)
+        out.units = units
+        return out
+
+    def with_axes(self, axes) -> "MarkerSequence":
+        """A copy with its axes turned: ``axes`` is ``"zup-to-yup"``, ``"yup-to-zup"`` or a
+        signed permutation such as ``"x,z,-y"`` (see :func:`parse_axes`)."""
+        if self.points.shape[2] != 3:
+            raise ValueError(f"axes turn 3-D points, found {self.points.shape[2]}-D data")
+        order, signs = parse_axes(axes)
+        return self.with_points(self.points[..., list(order)] * np.asarray(signs, dtype=float))
 
     # -- the ecosystem's data types (each imported on use; see the ``interop`` extra) -----------
     def _axes(self) -> list[str]:
@@ -216,6 +281,44 @@ class MarkerSequence:
         name = self.source.name if self.source else "<memory>"
         return (f"MarkerSequence({name}: {self.n_frames} frames x {self.n_markers} markers, "
                 f"{self.rate:g} Hz, {self.units}, {missing:.1f}% missing)")
+
+
+def _labels_key(key) -> bool:
+    """Whether an index names markers (a label or a list of labels) rather than frames."""
+    if isinstance(key, str):
+        return True
+    return isinstance(key, (list, tuple)) and len(key) > 0 and all(isinstance(k, str) for k in key)
+
+
+#: Power of ten of each length unit in metres.
+UNITS = {"m": 0, "cm": -2, "mm": -3}
+#: Named axis turns: the new x, y, z as signed old axes.
+AXES = {"zup-to-yup": "x,z,-y", "yup-to-zup": "x,-z,y"}
+
+
+def unit_power(source: str, target: str) -> int:
+    """``k`` such that a length in ``source`` units times ``10**k`` is in ``target`` units."""
+    for units in (source, target):
+        if units not in UNITS:
+            raise ValueError(f"units expected one of {', '.join(UNITS)}, found {units!r}")
+    return UNITS[source] - UNITS[target]
+
+
+def parse_axes(axes) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """``(order, signs)`` of an axis turn: new coordinate ``i`` is ``signs[i] * old[order[i]]``.
+
+    ``axes`` is a name of :data:`AXES` (``"zup-to-yup"``: a lab's Z-up frame to OpenSim's Y-up,
+    x kept, y = z, z = -y), a text ``"x,z,-y"`` (each new axis a signed old one, every old axis
+    once) or a sequence of three such items."""
+    text = AXES.get(str(axes).strip().lower(), axes) if isinstance(axes, str) else axes
+    items = [t.strip().lower() for t in (text.split(",") if isinstance(text, str) else text)]
+    found = [re.fullmatch(r"([+-]?)([xyz])", t) for t in items]
+    if len(items) != 3 or not all(found) or len({m.group(2) for m in found}) != 3:
+        raise ValueError(f"axes expected {' or '.join(map(repr, AXES))} or a signed permutation "
+                         f"of x, y, z such as 'x,z,-y', found {axes!r}")
+    order = tuple("xyz".index(m.group(2)) for m in found)
+    signs = tuple(-1 if m.group(1) == "-" else 1 for m in found)
+    return order, signs
 
 
 def _rate(rate: float | None, stored, time: np.ndarray) -> float:

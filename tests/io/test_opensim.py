@@ -4,6 +4,7 @@ metres; labels, rate, units, values and missing samples agree with ``torchfill.r
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -151,3 +152,105 @@ def test_c3d_to_trc(recording, tmp_path, name):
     back = _agree(tmp_path / "filled.trc")
     assert back.first_frame == seq.first_frame
     np.testing.assert_array_equal(back.mask, filled.mask)
+
+
+# -- OpenSim-ready output: axes, units, precision, the filled record beside the file ----------
+def test_zup_c3d_to_yup_metres_trc(recording, tmp_path):
+    """A lab's Z-up millimetre C3D written for OpenSim (Y-up, metres): OpenSim reads the file,
+    and the inverse turn of what it holds gives the C3D's samples back at float32 precision;
+    numbers have at most float32's digits, line 1 is short, the filled record lies beside it."""
+    seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_4.c3d"))
+    ctx = _quiet()
+    try:
+        filled = torchfill.fill(seq, "linear", max_gap=int(seq.rate))
+        out = tmp_path / "opensim.trc"
+        torchfill.write(filled, out, axes="zup-to-yup", units="m")
+    finally:
+        ctx.__exit__(None, None, None)
+    back = _agree(out)
+    assert back.units == "m"
+    np.testing.assert_array_equal(back.meta["filled"], filled.meta["filled"] & ~filled.mask)
+    lab = back.with_axes("yup-to-zup").in_units("mm")
+    ok = ~filled.mask
+    np.testing.assert_allclose(lab.points[ok], filled.points[ok], rtol=1e-6, atol=1e-9)
+    observed = ~seq.mask
+    np.testing.assert_array_equal(lab.points[observed].astype(np.float32),
+                                  seq.points[observed].astype(np.float32))
+    lines = out.read_text().splitlines()
+    assert lines[0] == "PathFileType\t4\t(X/Y/Z)\topensim.trc"
+    digits = max(len(c.lstrip("-").replace(".", "").lstrip("0")) for c in lines[6].split("\t")[2:])
+    assert digits <= 9
+    assert (tmp_path / "opensim.trc.filled").read_text().count("\n") > 2
+
+
+def test_axes_and_units_keep_a_trc_sources_digits(recording, tmp_path):
+    """From a TRC with 6 decimals in mm, metres get 9 decimals: the same digits, the point moved."""
+    src = recording("osim_gait2392_subject01_walk1.trc")
+    seq = torchfill.read(src)
+    out = tmp_path / "m.trc"
+    torchfill.write(seq, out, axes="x,z,-y", units="m")
+    row_in = src.read_text().splitlines()[6].split("\t")
+    row_out = out.read_text().splitlines()[6].split("\t")
+    assert row_out[2:5] == [_turned(row_in[2]), _turned(row_in[4]), _negated(_turned(row_in[3]))]
+    back = _agree(out).with_axes("x,-z,y").in_units("mm")
+    np.testing.assert_allclose(back.points, seq.points, rtol=1e-12)
+
+
+def _turned(text):              # mm -> m, as text: 617.247620 -> 0.617247620
+    whole, frac = text.lstrip("-").split(".")
+    digits = whole.rjust(3, "0")
+    out = (digits[:-3].lstrip("0") or "0") + "." + digits[-3:] + frac
+    return ("-" if text.startswith("-") else "") + out
+
+
+def _negated(text):
+    return text[1:] if text.startswith("-") else "-" + text
+
+
+@pytest.mark.slow
+def test_ik_on_a_lab_c3d_turned_for_opensim_matches_the_original(data_dir, tmp_path):
+    """gait2392's walk turned to a lab's Z-up C3D, then filled and written with
+    ``--axes zup-to-yup --units m``: OpenSim IK gives the original file's joint angles.
+
+    IK runs at accuracy 1e-8: at the setup's 1e-5 the solver's own tolerance moves angles by
+    up to 0.08 deg between two files that differ only in the last bit of a coordinate (the same
+    digits in m instead of mm), which would hide what this test checks."""
+    trc = data_dir / "osim_gait2392_subject01_walk1.trc"
+    setup = data_dir / "opensim" / "gait2392" / "subject01_Setup_IK.xml"
+    model = data_dir / "opensim" / "gait2392" / "subject01_simbody.osim"
+    if not (trc.is_file() and setup.is_file() and model.is_file()):
+        pytest.skip("the gait2392 recording, model or IK setup is not in the data folder")
+    seq = torchfill.read(trc)
+    lab = MarkerSequence(seq.with_axes("yup-to-zup").points, seq.labels, rate=seq.rate,
+                         units=seq.units)
+    torchfill.write(lab, tmp_path / "lab.c3d")
+    ctx = _quiet()
+    try:
+        filled = torchfill.fill(torchfill.read(tmp_path / "lab.c3d"))
+    finally:
+        ctx.__exit__(None, None, None)
+    torchfill.write(filled, tmp_path / "opensim.trc", axes="zup-to-yup", units="m")
+    original = _ik(trc, setup, model, seq, tmp_path / "a")
+    turned = _ik(tmp_path / "opensim.trc", setup, model, seq, tmp_path / "b")
+    rotational = [c for c in original.dtype.names[1:] if not c.startswith("pelvis_t")]
+    worst = max(np.abs(original[c] - turned[c]).max() for c in rotational)
+    assert worst <= 0.01, f"joint angles differ by up to {worst:.4f} deg"
+
+
+def _ik(markers, setup, model, seq, folder):
+    """OpenSim IK of a marker file: the .mot table (degrees) as a structured array."""
+    opensim.Logger.setLevelString("error")
+    folder.mkdir()
+    tool = opensim.InverseKinematicsTool(str(setup))
+    model = opensim.Model(str(model))               # the tool does not own it: keep it alive
+    tool.setModel(model)
+    tool.set_accuracy(1e-8)
+    tool.set_marker_file(str(Path(markers).resolve()))   # relative: to the setup's folder
+    tool.setStartTime(0.0)
+    tool.setEndTime((seq.n_frames - 1) / seq.rate)
+    tool.setResultsDir(str(folder.resolve()))
+    tool.set_output_motion_file(str(folder.resolve() / "ik.mot"))
+    assert tool.run()
+    lines = (folder / "ik.mot").read_text().splitlines()
+    end = next(i for i, line in enumerate(lines) if line.strip().lower() == "endheader")
+    return np.genfromtxt(lines[end + 1:], names=True, delimiter="\t")

@@ -352,6 +352,20 @@ def test_fitted_tensors_are_buffers_and_move_with_to(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_transform_after_a_dtype_move_fills_the_fitted_data(method):
+    """``s.fit_transform(x); s.to(torch.float64); s.transform(x)``: the fit stays usable (the
+    observed samples are compared at the precision the fit was made in)."""
+    for kind, dtype in (("float32", torch.float64), ("float64", torch.float32)):
+        solver, out = fitted(method, kind)
+        X = torch.from_numpy(GAPPY).to(out.dtype)
+        moved = copy.deepcopy(solver).to(dtype)
+        again = moved.transform(X)
+        assert again.dtype == X.dtype
+        assert_observed_kept(again, X)
+        torch.testing.assert_close(again.double(), out.double(), rtol=1e-4, atol=1e-2)
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_state_dict_loads_into_a_fresh_solver_and_transform_agrees(method):
     solver, out = fitted(method, "float64")
     buf = io.BytesIO()

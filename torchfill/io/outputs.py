@@ -245,6 +245,7 @@ class Outputs:
             finally:
                 os.close(fd)
             os.chmod(tmp, _mode_for(landing))
+            companions = self._companions(holder, tmp, path, me.what)
         except BaseException as err:
             shutil.rmtree(holder, ignore_errors=True)
             if undo is not None:
@@ -257,8 +258,31 @@ class Outputs:
                 raise FileFormatError(f"{path}: cannot write ({err.strerror or err}); nothing "
                                       f"written{kept}") from None
             raise
+        self._staged += companions
         self._staged.append(_Staged(path, landing, holder, tmp, undo=undo))
         return path
+
+    def _companions(self, holder: Path, tmp: Path, path: Path, what: str) -> list["_Staged"]:
+        """Files a format writer left beside ``tmp`` (a TRC's ``.filled`` record): checked and
+        registered like an output, synced, staged to land beside ``path``."""
+        staged = []
+        for extra in sorted(holder.iterdir()):
+            if extra.name == tmp.name:
+                continue
+            target = path.with_name(extra.name)
+            if not any(w.path == target for w in self._writes):
+                self.add_output(target, f"record of the {what}")
+            landing = self._check(target, f"record of the {what}", replace_input=False,
+                                  folder=False, hint="",
+                                  me=next(w for w in self._writes if w.path == target))
+            fd = os.open(extra, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.chmod(extra, _mode_for(landing))
+            staged.append(_Staged(target, landing, None, extra))
+        return staged
 
     def commit(self) -> None:
         """Put every staged output in place (folders written by their own writer first, then

@@ -29,11 +29,23 @@ cell longer than that line would turn the frame column into pandas' index), and 
 ``Unnamed`` column the trailing tab makes. A write-back pads the source's short rows the same way
 (their cells are kept).
 
-Filled samples are recorded in the first line, after the file name, as one more cell
-``torchfill-filled=M:A-B,...`` (marker number M as in ``XM``, data rows A to B, 1-based,
-inclusive). OpenSim keeps that line as the table's ``header`` metadata (and writes it back),
-Pose2Sim keeps it as a header line; the reader returns it as ``meta["filled"]``, so that a second
-fill keeps those samples but does not fit to them (:func:`torchfill.fill`).
+Filled samples are recorded beside the file, in ``NAME.trc.filled``: a small tab-separated table
+of runs (marker number M as in ``XM``, its label, first and last data row, 1-based, inclusive)
+under a comment line that carries the SHA-256 of the TRC it describes. Line 1 stays the plain
+``PathFileType`` line every reader expects. The reader returns the runs as ``meta["filled"]``, so
+that a second fill keeps those samples but does not fit to them (:func:`torchfill.fill`); a record
+that does not match its TRC (the TRC was changed since) is ignored with a warning. Files written
+by earlier versions carry the runs in line 1 as one more cell ``torchfill-filled=M:A-B,...``;
+they are read the same way, and a write-back drops that cell.
+
+For OpenSim, ``write(..., axes="zup-to-yup", units="m")`` turns a lab's Z-up millimetres into
+OpenSim's Y-up metres (:func:`torchfill.sequence.parse_axes`, :func:`~torchfill.sequence.unit_power`):
+every written sample is turned and scaled, nothing else (frames, times, rate, labels, the filled
+record). Numbers keep the precision of the source -- a TRC's decimals, a C3D's float32 values as
+the shortest text that reads back as the same float32, an integer C3D's scale -- and the unit
+change moves the decimal point of that text, so no digit is invented or lost. Without a source
+precision (arrays), observed values are written exactly and filled values with 6 significant
+digits, as OpenSim's own writer does.
 
 References
 ----------
@@ -42,10 +54,12 @@ References
 """
 from __future__ import annotations
 
+import hashlib
 import io
 import math
 import re
 import warnings
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +67,7 @@ import numpy as np
 from . import FileFormatError
 from ._common import (atomic_write, check_writable, filled_samples, storable_labels,
                       unwritten_edits)
-from ..sequence import MarkerSequence
+from ..sequence import MarkerSequence, parse_axes, unit_power
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
@@ -176,9 +190,11 @@ def _load(path: Path) -> _Parsed:
     if b"\x00" in raw[:4096]:
         _fail(path, "not a TRC file (binary content)")
     try:
-        return _Parsed(path, raw.decode("utf-8"), "utf-8")
+        parsed = _Parsed(path, raw.decode("utf-8"), "utf-8")
     except UnicodeDecodeError:                 # older files: Latin-1 (every byte decodes)
-        return _Parsed(path, raw.decode("latin-1"), "latin-1")
+        parsed = _Parsed(path, raw.decode("latin-1"), "latin-1")
+    parsed.digest = hashlib.sha256(raw).hexdigest()
+    return parsed
 
 
 def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> MarkerSequence:
@@ -217,6 +233,8 @@ def read(path, *, zeros_missing: bool = True, markers_only: bool = True) -> Mark
     numbers = np.clip(numbers, -2**62, 2**62).astype(np.int64)
     meta = {"frame_numbers": numbers, "time": times}
     filled = _filled_runs(parsed, len(frames), J)
+    if filled is None:
+        filled = _side_record(parsed, len(frames), J)
     if filled is not None:
         filled &= np.isfinite(points).all(axis=2)
         if filled.any():
@@ -252,35 +270,77 @@ def _filled_runs(parsed: "_Parsed", T: int, J: int) -> np.ndarray | None:
     return filled
 
 
+#: The suffix of the filled-samples record beside a TRC (``walk.trc`` -> ``walk.trc.filled``).
+SIDE = ".filled"
+
+
+def side_path(path) -> Path:
+    """Where the filled-samples record of the TRC ``path`` lies."""
+    path = Path(path)
+    return path.with_name(path.name + SIDE)
+
+
+def _side_record(parsed: "_Parsed", T: int, J: int) -> np.ndarray | None:
+    """``(T, J)`` filled samples from the record beside the file (None if there is none; a
+    warning and None if it does not describe this file)."""
+    side = side_path(parsed.path)
+    if not side.is_file():
+        return None
+    problem, filled = None, np.zeros((T, J), dtype=bool)
+    try:
+        lines = side.read_text(encoding="utf-8").splitlines()
+        if not lines or f"sha256 {parsed.digest}" not in lines[0]:
+            problem = f"{parsed.path.name} changed since it was written"
+        for line in lines[2:] if problem is None else []:
+            m, _, a, b = line.split("\t")
+            m, a, b = int(m), int(a), int(b)
+            if not (1 <= m <= J and 1 <= a <= b <= T):
+                raise ValueError(line)
+            filled[a - 1:b, m - 1] = True
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        problem = f"unreadable ({_first(err)})"
+    if problem:
+        warnings.warn(f"{side.name}: {problem}; filled samples are not marked", stacklevel=3)
+        return None
+    return filled
+
+
+def _side_text(filled: np.ndarray, labels: list[str], name: str, digest: str) -> str:
+    """The record beside a TRC: its runs of filled samples, one per line."""
+    rows = [f"# torchfill: samples of {name} a fill made (data rows, 1-based, inclusive); "
+            f"sha256 {digest}", "marker\tlabel\tfirst_row\tlast_row"]
+    for j in range(filled.shape[1]):
+        col = np.concatenate([[False], filled[:, j], [False]]).astype(np.int8)
+        edges = np.flatnonzero(np.diff(col))
+        rows += [f"{j + 1}\t{labels[j]}\t{a + 1}\t{b}" for a, b in zip(edges[::2], edges[1::2])]
+    return "\n".join(rows) + "\n"
+
+
+def _write_side(path: Path, text: str, filled: np.ndarray | None, labels: list[str]) -> None:
+    """Write the TRC ``text`` to ``path`` and, when samples are filled, its record beside it."""
+    data = text.encode("utf-8") if isinstance(text, str) else text
+    if filled is not None and filled.any():
+        side = _side_text(filled, labels, path.name, hashlib.sha256(data).hexdigest())
+        atomic_write(side_path(path), lambda handle: handle.write(side.encode("utf-8")))
+    atomic_write(path, lambda handle: handle.write(data))
+
+
 def _first(err: Exception) -> str:
     text = str(err).strip()
     return text[:40] if text else type(err).__name__
 
 
-def _filled_cell(filled: np.ndarray | None) -> str:
-    """The ``torchfill-filled=`` cell for a (T, J) mask ('' when nothing is filled)."""
-    if filled is None or not filled.any():
-        return ""
-    runs = []
-    for j in range(filled.shape[1]):
-        col = np.concatenate([[False], filled[:, j], [False]]).astype(np.int8)
-        edges = np.flatnonzero(np.diff(col))
-        runs += [f"{j + 1}:{a + 1}-{b}" for a, b in zip(edges[::2], edges[1::2])]
-    return _FILLED_KEY + ",".join(runs)
-
-
-def _first_line(line: str, filled: np.ndarray | None) -> str:
-    """Line 1 with its ``torchfill-filled=`` cell replaced by the one for ``filled``."""
+def _first_line(line: str) -> str:
+    """Line 1 without an earlier version's ``torchfill-filled=`` cell."""
     body = line.rstrip("\r\n")
     ending = line[len(body):]
     old = body.split("\t")
     cells = [c for c in old if not c.strip().startswith(_FILLED_KEY)]
-    record = _filled_cell(filled)
-    if not record and len(cells) == len(old):
+    if len(cells) == len(old):
         return line
     while len(cells) > 1 and not cells[-1].strip():
         cells.pop()
-    return "\t".join(cells + ([record] if record else [])) + ending
+    return "\t".join(cells) + ending
 
 
 def _full_row(cells: list[str], n: int) -> list[str]:
@@ -291,26 +351,105 @@ def _full_row(cells: list[str], n: int) -> list[str]:
     return cells
 
 
-def write(seq: MarkerSequence, path, *, decimals: int | None = None) -> None:
-    """Write ``seq`` as a TRC file, atomically.
+def write(seq: MarkerSequence, path, *, decimals: int | None = None, axes=None,
+          units: str | None = None) -> None:
+    """Write ``seq`` as a TRC file, atomically, with the record of its filled samples beside it.
 
-    When ``seq.source`` is a TRC file with the same frames and markers, its header lines and all
-    untouched cells are kept; only the cells of filled samples (``seq.meta["filled"]``, else the
-    samples missing in the source and finite in ``seq``) change, written with the file's own
-    number of decimals (or ``decimals``); the first line's ``torchfill-filled=`` record is set to
-    the filled samples and short rows are padded (see the module notes). Otherwise a fresh TRC is
-    written (6 decimals by default, more where a value needs them to read back the same; frame
-    numbers from ``seq.first_frame``); missing samples are empty cells.
+    When ``seq.source`` is a TRC file with the same frames and markers and no axes or units
+    change is asked, its header lines and all untouched cells are kept; only the cells of filled
+    samples (``seq.meta["filled"]``, else the samples missing in the source and finite in
+    ``seq``) change, written with the file's own number of decimals (or ``decimals``), and short
+    rows are padded (see the module notes). Otherwise a fresh TRC is written (frame numbers from
+    ``seq.first_frame``, missing samples as empty cells, numbers with the source's precision).
+
+    Parameters
+    ----------
+    decimals : int, optional
+        Decimals of every written coordinate (default: the source's precision).
+    axes : str, optional
+        Turn every sample: ``"zup-to-yup"`` (a lab's Z-up to OpenSim's Y-up), ``"yup-to-zup"`` or
+        a signed permutation such as ``"x,z,-y"``.
+    units : {"m", "cm", "mm"}, optional
+        Scale every sample into these units (the header's Units says them).
     """
     path = Path(path)
     check_writable(seq, path)
+    turn = _Turn(seq, axes, units)
     source = Path(seq.source) if seq.source is not None else None
+    parsed = None
     if source is not None and source.suffix.lower() == ".trc" and source.is_file():
         parsed = _load(source)
-        if len(parsed.data_lines) == seq.n_frames and parsed.labels == seq.labels:
+        if (turn.identity and len(parsed.data_lines) == seq.n_frames
+                and parsed.labels == seq.labels):
             return _write_back(seq, path, parsed, decimals)
-    text = _fresh_text(seq, path, 6 if decimals is None else decimals)
-    atomic_write(path, lambda handle: handle.write(text.encode("utf-8")))
+    filled = seq.meta.get("filled")
+    filled = (np.asarray(filled, dtype=bool) & np.isfinite(seq.points).all(axis=2)
+              if filled is not None and np.shape(filled) == seq.points.shape[:2] else None)
+    numbers = _Numbers(seq, parsed, decimals)
+    labels = storable_labels(seq.labels, _trc_label, _trc_labels_back, path)
+    _write_side(path, _fresh_text(seq, path, labels, turn, numbers, filled), filled, labels)
+
+
+class _Turn:
+    """The axes and units change of a write: new coordinate ``i`` is ``signs[i] *
+    old[order[i]] * 10**power``, applied to the text of each number (exact)."""
+
+    def __init__(self, seq: MarkerSequence, axes, units: str | None):
+        self.order, self.signs = parse_axes(axes) if axes is not None else ((0, 1, 2), (1, 1, 1))
+        try:
+            self.power = 0 if units is None else unit_power(seq.units, units)
+        except ValueError as err:
+            raise ValueError(f"{err} (the recording's units are {seq.units!r})") from None
+        self.units = seq.units if units is None else units
+        self.identity = self.order == (0, 1, 2) and self.signs == (1, 1, 1) and self.power == 0
+
+    def apply(self, texts: list[str]) -> list[str]:
+        """One sample's three number texts (empty: missing), turned and scaled."""
+        return [_signed(_shifted(texts[o], self.power), s) for o, s in zip(self.order, self.signs)]
+
+
+def _shifted(text: str, power: int) -> str:
+    """``text`` times ``10**power``, by moving its decimal point."""
+    if not power or not text:
+        return text
+    return format(Decimal(text).scaleb(power), "f")
+
+
+def _signed(text: str, sign: int) -> str:
+    if sign > 0 or not text or float(text) == 0:
+        return text
+    return text[1:] if text.startswith("-") else "-" + text.lstrip("+")
+
+
+class _Numbers:
+    """How a fresh TRC writes numbers: the source's precision (see the module notes)."""
+
+    def __init__(self, seq: MarkerSequence, parsed: _Parsed | None, decimals: int | None):
+        c3d = seq.meta.get("c3d") or {}
+        self.decimals = decimals
+        self.digits = None                    # significant digits of filled values, else None
+        self.float32 = False
+        if decimals is not None:
+            return
+        if parsed is not None:
+            self.decimals = _decimals([c for i in parsed.data_lines[:50]
+                                       for c in _cells(parsed.lines[i])[2:]])
+        elif c3d.get("format") == "float32":
+            self.float32 = True
+        elif c3d.get("format") == "int16" and c3d.get("scale"):
+            self.decimals = max(0, math.floor(-math.log10(abs(float(c3d["scale"]))))) + 1
+        else:
+            self.digits = 6
+
+    def text(self, value: float, filled: bool) -> str:
+        if self.decimals is not None:
+            return f"{value:.{self.decimals}f}"
+        if self.float32:
+            return np.format_float_positional(np.float32(value), unique=True, trim="-")
+        if filled:
+            return np.format_float_positional(value, precision=self.digits, unique=True,
+                                              fractional=False, trim="-")
+        return np.format_float_positional(value, unique=True, trim="-")
 
 
 def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int | None) -> None:
@@ -329,7 +468,7 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
     J = seq.n_markers
     n = 2 + 3 * J
     lines = list(parsed.lines)
-    lines[0] = _first_line(lines[0], filled)
+    lines[0] = _first_line(lines[0])
     rows = []
     for t, i in enumerate(parsed.data_lines):
         cells = lines[i].rstrip("\r\n").split("\t")
@@ -352,8 +491,7 @@ def _write_back(seq: MarkerSequence, path: Path, parsed: _Parsed, decimals: int 
     axes = lines[4].rstrip("\r\n")
     if trailing and len(axes.split("\t")) == n:
         lines[4] = axes + "\t" + lines[4][len(axes):]
-    text = "".join(lines)
-    atomic_write(path, lambda handle: handle.write(text.encode(parsed.encoding)))
+    _write_side(path, "".join(lines).encode(parsed.encoding), filled, seq.labels)
 
 
 def _sample_cells(cells: list[str], xyz: np.ndarray, rewrite: np.ndarray, places: int) -> list[str]:
@@ -374,13 +512,6 @@ def _decimals(cells: list[str]) -> int:
     return max(places) if places else 6
 
 
-def _exact(value: float, decimals: int) -> str:
-    """``value`` with ``decimals`` decimals when that reads back as the same float, else the
-    shortest text that does (a fresh TRC never rounds a value away)."""
-    text = f"{value:.{decimals}f}"
-    return text if float(text) == value else repr(value)
-
-
 def _trc_label(label: str, j: int) -> str:
     """A label as a TRC header cell: no tabs or line breaks, no outer spaces, never empty."""
     return re.sub(r"[\t\r\n]+", " ", label).strip() or f"M{j + 1}"
@@ -390,28 +521,29 @@ def _trc_labels_back(stored: list[str]) -> list[str]:
     return [c.strip() for c in stored if c.strip()]
 
 
-def _fresh_text(seq: MarkerSequence, path: Path, decimals: int) -> str:
+def _fresh_text(seq: MarkerSequence, path: Path, labels: list[str], turn: _Turn,
+                numbers: _Numbers, filled: np.ndarray | None) -> str:
     T, J = seq.n_frames, seq.n_markers
-    labels = storable_labels(seq.labels, _trc_label, _trc_labels_back, path)
     first = int(seq.first_frame)
     rate = float(seq.rate)
-    filled = seq.meta.get("filled")
-    filled = (np.asarray(filled, dtype=bool) & np.isfinite(seq.points).all(axis=2)
-              if filled is not None and np.shape(filled) == (T, J) else None)
     name = re.sub(r"[\t\r\n]+", " ", path.name)
-    record = _filled_cell(filled)
     lines = [
-        f"PathFileType\t4\t(X/Y/Z)\t{name}" + (f"\t{record}" if record else ""),
+        f"PathFileType\t4\t(X/Y/Z)\t{name}",
         "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
         "OrigDataStartFrame\tOrigNumFrames",
-        f"{rate:.12g}\t{rate:.12g}\t{T}\t{J}\t{_trc_units(seq.units)}\t{rate:.12g}\t{first}\t{T}",
+        f"{rate:.12g}\t{rate:.12g}\t{T}\t{J}\t{_trc_units(turn.units)}\t{rate:.12g}\t{first}\t{T}",
         "Frame#\tTime\t" + "".join(f"{label}\t\t\t" for label in labels),
         "\t\t" + "".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}\t" for j in range(J)),
         "",
     ]
+    finite = np.isfinite(seq.points).all(axis=2)
+    made = filled if filled is not None else np.zeros((T, J), dtype=bool)
     for t in range(T):
-        row = seq.points[t].reshape(-1)
-        cells = ["" if math.isnan(v) else _exact(v, decimals) for v in row.tolist()]
+        cells = []
+        for j, xyz in enumerate(seq.points[t].tolist()):
+            texts = ([numbers.text(v, made[t, j]) for v in xyz] if finite[t, j] else
+                     ["" if math.isnan(v) else numbers.text(v, False) for v in xyz])
+            cells += turn.apply(texts)
         lines.append(f"{first + t}\t{t / rate:.6f}\t" + "\t".join(cells) + "\t")
     return "\n".join(lines) + "\n"
 

@@ -432,6 +432,7 @@ class Solver(nn.Module):
         self.sigma_ = torch.where(sigma > 0, sigma, torch.ones_like(sigma))
         self.M_ = centred / self.sigma_
         self.Omega_ = Omega
+        self.fit_eps_ = float(torch.finfo(dtype).eps)        # transform() after .to(): see there
         self.generator_ = torch.Generator(device=X.device).manual_seed(self.seed)
         self.history_, self.n_iter_, self.converged_ = [], 0, False
         self._initialize()
@@ -561,7 +562,10 @@ class Solver(nn.Module):
             Omega = self.Omega_
             Xw = X.to(device=Omega.device, dtype=self.M_.dtype)
             fitted = self.M_ * self.sigma_ + self.mu_
-            tol = 64 * torch.finfo(Xw.dtype).eps * (Xw.abs() + self.mu_.abs() + self.sigma_)
+            # the fitted data are compared at the coarser of the fit's and the state's precision
+            # (a fit moved by .to(dtype) keeps the rounding of the dtype it was made in)
+            eps = max(torch.finfo(Xw.dtype).eps, getattr(self, "fit_eps_", 0.0))
+            tol = 64 * eps * (Xw.abs() + self.mu_.abs() + self.sigma_)
             same = torch.where(Omega, (Xw - fitted).abs() <= tol, True)
             if not bool(same.all()):
                 raise ValueError(f"{self.name}: transform() got other data than the solver was "
