@@ -144,3 +144,69 @@ def test_fill_dtype_reaches_fill(gappy_npz, tmp_path):
     with pytest.raises(SystemExit) as err:
         main(["fill", str(path), "-o", str(tmp_path / "x.npz"), "--dtype", "float16"])
     assert err.value.code == 2
+
+
+@pytest.mark.parametrize("verb", ["fill", "evaluate"])
+@pytest.mark.parametrize("args, needle", [
+    (["-m", "tuker"], "unknown method 'tuker'; did you mean 'tucker'?"),
+    (["-m", "pchip,tuker"], "unknown method 'tuker'; did you mean 'tucker'?"),
+    (["-m", "linear", "-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean "
+                                              "'max_iter'?"),
+    (["-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean 'max_iter'?"),
+])
+def test_names_are_checked_before_any_work(verb, args, needle, gappy_npz, tmp_path, capsys):
+    """A typo is named before the recording is read (nothing printed, nothing written)."""
+    if verb == "fill" and "," in args[-1]:
+        return                                         # fill takes one method
+    out = ["-o", str(tmp_path / "out.npz")] if verb == "fill" else []
+    code = main([verb, str(gappy_npz[0]), *out, *args])
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and needle in err, err
+    assert captured.out == "" and not (tmp_path / "out.npz").exists()
+
+
+def test_method_names_forgive_case(gappy_npz, tmp_path, capsys):
+    path, X = gappy_npz
+    assert main(["fill", str(path), "-o", str(tmp_path / "a.npz"), "-m", "LINEAR", "-q"]) == 0
+    assert main(["evaluate", str(path), "-m", "PCHIP,Linear", "--markers", "2", "--gap-length",
+                 "20", "--max-gaps", "2", "--json", "-q"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [row["method"] for row in report["results"]] == ["pchip", "linear"]
+
+
+def test_evaluate_recommends_and_warns_once(recording, capsys):
+    """The reported file: the table ends with the best method and its margin; the trial-end
+    warning the three fills share is printed once; one-shot methods show no iteration count."""
+    path = recording("c3dorg_s26_walking_hybrid_1_1.c3d")
+    assert main(["evaluate", str(path), "-m", "linear,spline,pchip"]) == 0
+    captured = capsys.readouterr()
+    out = captured.out.strip().splitlines()
+    rows = {line.split()[0]: line.split() for line in out if line.split()[0] in
+            ("linear", "spline", "pchip")}
+    gaps = {m: float(r[4]) for m, r in rows.items()}
+    best = min(gaps, key=gaps.get)
+    second = sorted(gaps.values())[1]
+    assert out[-1].startswith(f"best on this file: {best} (rmse over the gaps {gaps[best]:.4g} mm")
+    assert f"{second - gaps[best]:.3g} mm" in out[-1]
+    assert all(r[-1] == "-" for r in rows.values())            # no "1 iteration"
+    warnings_ = [line for line in captured.err.splitlines() if "warning" in line]
+    assert len(warnings_) == len(set(w.split(":")[2] for w in warnings_)) >= 1
+    assert "the fills of linear, spline, pchip" in warnings_[0]
+
+
+def test_fill_trc_for_opensim(gappy_npz, tmp_path, capsys):
+    """--axes/--units turn and scale every sample of a TRC output; other outputs refuse them."""
+    path, X = gappy_npz
+    out = tmp_path / "opensim.trc"
+    assert main(["fill", str(path), "-o", str(out), "-m", "linear", "-q", "--axes", "x,z,-y",
+                 "--units", "m"]) == 0
+    back = torchfill.read(out)
+    assert back.units == "m" and out.read_text().splitlines()[0].endswith("opensim.trc")
+    lab = back.with_axes("x,-z,y").in_units("mm")
+    observed = np.isfinite(X).all(axis=2)
+    np.testing.assert_allclose(lab.points[observed], X[observed], rtol=1e-12)
+    assert main(["fill", str(path), "-o", str(tmp_path / "x.npz"), "--units", "m"]) == 2
+    assert main(["fill", str(path), "-o", str(tmp_path / "x.trc"), "--axes", "up"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert "--axes/--units write TRC files" in err[0] and "signed permutation" in err[1]

@@ -69,21 +69,47 @@ def test_import_torchfill_is_light_and_fill_still_works():
 
 
 def test_static_method_list_is_the_registry():
+    """The catalog read from the sources agrees with the live classes: names, summaries (whole
+    first sentences of the docstrings), training data, 2-D support, a speed class for each."""
+    import numpy as np
+
     import torchfill
-    from torchfill._catalog import entries
+    from torchfill._catalog import SPEED, catalog, default
     from torchfill.solvers import base
 
-    listed = entries()
-    assert [name for name, _ in listed] == torchfill.methods()
-    for name, summary in listed:
-        doc = (base._REGISTRY[name].__doc__ or "").strip()
-        assert summary == (doc.splitlines()[0] if doc else "")
+    listed = catalog()
+    assert [e.name for e in listed] == torchfill.methods()
+    assert set(SPEED) == set(torchfill.methods()) and default() == torchfill.default_method()
+    X = np.random.default_rng(0).normal(size=(40, 5, 2))
+    X[10:15, 1] = np.nan
+    for e in listed:
+        cls = base._REGISTRY[e.name]
+        doc = " ".join((cls.__doc__ or "").split())
+        assert doc.startswith(e.summary.rstrip(".")) and e.summary.endswith("."), e.name
+        assert e.training == ("training" in cls.fit_data), e.name
+        if not e.planar:
+            with pytest.raises(ValueError, match="3-D"):
+                torchfill.fill(X, e.name, constraints=False)
+    for name in ("linear", "pchip", "svt"):
+        assert next(e for e in listed if e.name == name).planar
+        torchfill.fill(X, name, constraints=False)
 
 
 def test_methods_cli_lists_every_registered_method(capsys):
+    """One row per method, the default marked, columns for speed, 2-D and training; summaries
+    are whole sentences (continued on the next lines, never cut)."""
     import torchfill
+    from torchfill._catalog import catalog
     from torchfill.cli import main
 
     assert main(["methods"]) == 0
-    printed = [line.split()[0] for line in capsys.readouterr().out.splitlines() if line.strip()]
-    assert printed == torchfill.methods()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split() == ["method", "speed", "2-D", "training", "summary"]
+    rows = [line for line in lines[1:] if line[:1].strip() and not line.startswith("*")]
+    assert [row.split()[0] for row in rows] == torchfill.methods()
+    default = next(row for row in rows if row.split()[1] == "*")
+    assert default.split()[0] == torchfill.default_method()
+    assert lines[-1].startswith("*") or any(line.startswith("* the default") for line in lines)
+    text = " ".join(" ".join(lines).split())
+    for e in catalog():
+        assert " ".join(e.summary.replace("``", "").split()) in text, e.name

@@ -11,6 +11,7 @@ import struct
 import subprocess
 import sys
 import termios
+import time
 from pathlib import Path
 
 import numpy as np
@@ -172,3 +173,21 @@ def test_fraction_over_windows_and_stages():
     auto.update({"window": 1, "windows": 1, "iter": 1, "refit": 1.0, "refits": 2.0})
     assert auto.fraction() == pytest.approx(0.9 * (0.6 + 0.35 * 0.5))
     auto.close()
+
+
+def test_a_long_step_still_moves_the_bar_every_second():
+    """No record for 3 s inside auto's fits: the bar creeps on at least once a second, stays
+    inside the stage under way, and the next record still moves it."""
+    bar = progress.Bar(1, "auto", file=_Terminal(), delay=0)
+    bar.update({"window": 1, "windows": 1, "iter": 1, "fit": 5.0, "fits": 10.0})
+    start = bar.bar.n
+    seen = []
+    for _ in range(6):
+        time.sleep(progress.TICK)
+        seen.append(bar.bar.n)
+    moves = [b > a for a, b in zip([start] + seen, seen)]
+    assert sum(moves) >= 2 and seen == sorted(seen) and seen[-1] > start
+    assert bar.bar.n < progress.UNITS * 0.9 * 0.6                 # not past the fits' stage
+    bar.update({"window": 1, "windows": 1, "iter": 1, "refit": 1.0, "refits": 2.0})
+    assert bar.bar.n == int(progress.UNITS * 0.9 * (0.6 + 0.35 * 0.5))
+    bar.close()

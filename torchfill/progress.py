@@ -13,7 +13,10 @@ window has finished, then 1.25x the iterations the finished windows took -- and 
 when the window ends; ``auto``'s share grows with its finished hold-out fits (to 60 %) and refits
 (to 95 %). The post-step (:mod:`torchfill.constraints`) is the last tenth of the whole. The time
 left is tqdm's: the remaining share at the rate so far, so it errs long while the first window of
-an iterative method runs.
+an iterative method runs. A step that reports nothing for a second (one long candidate fit) does
+not freeze the bar: it creeps towards the end of the stage under way (a fiftieth of the distance
+left, at least one unit, every ``TICK`` seconds) and never reaches it, so a record always moves it
+on.
 """
 from __future__ import annotations
 
@@ -32,6 +35,8 @@ POST_SHARE = 0.1
 STAGES = {"fit": (0.0, 0.6), "refit": (0.6, 0.95)}
 #: Resolution of the bar (units per whole fill).
 UNITS = 1000
+#: Seconds between the bar's own moves while no record comes (see the module notes).
+TICK = 0.5
 
 
 def make(progress, *, windows: int, method: str):
@@ -89,6 +94,10 @@ class Bar(Silent):
         if delay is None:
             delay = float(os.environ.get("TORCHFILL_PROGRESS_DELAY", DELAY))
         self.bar = None
+        self.crept = 0.0                          # where the creep has taken the bar
+        self.ceiling = self.share                 # the end of the stage under way
+        self.last = time.perf_counter()           # when a record last moved the bar
+        self.stop = threading.Event()
         if _isatty(self.file):
             from tqdm import tqdm
             cols, rows = _size(self.file)       # a terminal of unknown size (0 x 0): 80 x 20
@@ -97,9 +106,24 @@ class Bar(Silent):
                             nrows=None if rows > 0 else 20, mininterval=0.2,
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| "
                                        "{elapsed}<{remaining}{postfix}")
+            threading.Thread(target=self._tick, daemon=True, name="torchfill-progress").start()
 
     def fraction(self) -> float:
         return min(1.0, sum(self.done.values()) * self.share + self.post)
+
+    def _tick(self) -> None:
+        """Creep while no record comes (see the module notes)."""
+        while not self.stop.wait(TICK):
+            with self.lock:
+                if time.perf_counter() - self.last < 1.0:
+                    continue
+                now = max(self.fraction(), self.crept)
+                room = self.ceiling - 1.0 / UNITS - now
+                if room > 0:
+                    self.crept = now + min(room, max(1.0 / UNITS, room / 50))
+                self._show()
+                if self.bar is not None:
+                    self.bar.refresh()
 
     def update(self, record: dict) -> None:
         k = int(record.get("window", 1))
@@ -107,22 +131,28 @@ class Bar(Silent):
             part = _window_part(record, self._expected(record))
             self.done[k] = max(self.done.get(k, 0.0), part)
             self.postfix = _postfix(record, self.windows)
+            self.ceiling = (sum(self.done.values()) - self.done[k] + _stage_end(record)) * self.share
+            self.last = time.perf_counter()
             self._show()
 
     def window_done(self, window: int, n_iter: int) -> None:
         with self.lock:
             self.done[window] = 1.0
             self.finished.append(int(n_iter))
+            self.ceiling = min(1.0 - POST_SHARE, (sum(self.done.values()) + 1) * self.share)
+            self.last = time.perf_counter()
             self._show()
 
     def post_step(self) -> None:
         with self.lock:
             self.done = {k: 1.0 for k in range(1, self.windows + 1)}
             self.postfix = "constraints"
+            self.ceiling, self.last = 1.0, time.perf_counter()
             self._show()
 
     def close(self, summary: str | None = None) -> None:
         seconds = time.perf_counter() - self.start
+        self.stop.set()
         if self.bar is not None:
             self.bar.close()
         elif summary:
@@ -137,7 +167,7 @@ class Bar(Silent):
     def _show(self) -> None:
         if self.bar is None:
             return
-        n = int(UNITS * self.fraction())
+        n = int(UNITS * max(self.fraction(), self.crept))
         if n > self.bar.n:
             self.bar.set_postfix_str(self.postfix, refresh=False)
             self.bar.update(n - self.bar.n)
@@ -150,6 +180,14 @@ def _window_part(record: dict, expected: float) -> float:
         if total:
             return lo + (hi - lo) * min(1.0, float(record.get(stage, 0)) / float(total))
     return min(0.99, float(record.get("iter", 0)) / max(expected, 1.0))
+
+
+def _stage_end(record: dict) -> float:
+    """Where the stage a record belongs to ends, as a fraction of its window."""
+    for stage, (_, hi) in STAGES.items():
+        if record.get(f"{stage}s"):
+            return hi
+    return 0.99
 
 
 def _postfix(record: dict, windows: int) -> str:

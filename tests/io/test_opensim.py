@@ -215,6 +215,8 @@ def test_ik_on_a_lab_c3d_turned_for_opensim_matches_the_original(data_dir, tmp_p
     IK runs at accuracy 1e-8: at the setup's 1e-5 the solver's own tolerance moves angles by
     up to 0.08 deg between two files that differ only in the last bit of a coordinate (the same
     digits in m instead of mm), which would hide what this test checks."""
+    from torchfill.cli import main
+
     trc = data_dir / "osim_gait2392_subject01_walk1.trc"
     setup = data_dir / "opensim" / "gait2392" / "subject01_Setup_IK.xml"
     model = data_dir / "opensim" / "gait2392" / "subject01_simbody.osim"
@@ -224,12 +226,8 @@ def test_ik_on_a_lab_c3d_turned_for_opensim_matches_the_original(data_dir, tmp_p
     lab = MarkerSequence(seq.with_axes("yup-to-zup").points, seq.labels, rate=seq.rate,
                          units=seq.units)
     torchfill.write(lab, tmp_path / "lab.c3d")
-    ctx = _quiet()
-    try:
-        filled = torchfill.fill(torchfill.read(tmp_path / "lab.c3d"))
-    finally:
-        ctx.__exit__(None, None, None)
-    torchfill.write(filled, tmp_path / "opensim.trc", axes="zup-to-yup", units="m")
+    assert main(["fill", str(tmp_path / "lab.c3d"), "-o", str(tmp_path / "opensim.trc"), "-q",
+                 "--axes", "zup-to-yup", "--units", "m"]) == 0
     original = _ik(trc, setup, model, seq, tmp_path / "a")
     turned = _ik(tmp_path / "opensim.trc", setup, model, seq, tmp_path / "b")
     rotational = [c for c in original.dtype.names[1:] if not c.startswith("pelvis_t")]
@@ -240,6 +238,7 @@ def test_ik_on_a_lab_c3d_turned_for_opensim_matches_the_original(data_dir, tmp_p
 def _ik(markers, setup, model, seq, folder):
     """OpenSim IK of a marker file: the .mot table (degrees) as a structured array."""
     opensim.Logger.setLevelString("error")
+    opensim.Logger.removeFileSink()                 # no opensim.log in the working directory
     folder.mkdir()
     tool = opensim.InverseKinematicsTool(str(setup))
     model = opensim.Model(str(model))               # the tool does not own it: keep it alive

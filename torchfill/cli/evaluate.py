@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import json
+import warnings
 
+from .names import check_params, method_names
 from .options import _naming, _parse_params, _pose_options, _progress, _say
 
 
@@ -12,6 +14,10 @@ def _cmd_evaluate(args) -> int:
     import torchfill
     from torchfill import gaps, metrics
 
+    src = f"{args.input}: "
+    methods = method_names(args.method, src) or \
+        ["linear", "spline", "pchip", torchfill.default_method()]
+    params = check_params(methods, _parse_params(args.param), src)     # before any work
     read = torchfill.read(args.input, **_pose_options(args))
     truth = read.merge_duplicates()
     T, J = truth.points.shape[:2]
@@ -21,29 +27,71 @@ def _cmd_evaluate(args) -> int:
     if not mask.any():
         raise ValueError(f"{args.input}: no observed sample falls in the simulated gaps")
     incomplete = truth.with_points(np.where(mask[..., None], np.nan, truth.points))
-    methods = [m for part in args.method for m in part.split(",") if m] or \
-        ["linear", "spline", "pchip", torchfill.default_method()]
     merged = read.n_markers - truth.n_markers
     _say(args, f"{truth}" + (f"  ({merged} duplicate-label marker(s) merged)" if merged else "")
          + f"\nprotocol {args.protocol} {kwargs} seed {args.seed}: {int(mask.sum())} observed "
          f"samples hidden in {int(mask.any(axis=0).sum())} markers")
     factor, units = _MM.get(truth.units, (1.0, truth.units))
-    rows = []
-    for method in dict.fromkeys(methods):
-        params = _parse_params(args.param) if len(methods) == 1 else {}
-        with _naming(args.input):   # scored everywhere: no extrapolation limit
+    rows, said = [], {}
+    for method in methods:
+        with _naming(args.input), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")     # scored everywhere: no extrapolation limit
             filled = torchfill.fill(incomplete, method, progress=_progress(args),
-                                    extrapolate=None, params=params)
+                                    extrapolate=None, params=params[method])
+        for w in caught:
+            said.setdefault((w.category, _headline(str(w.message))), (w, []))[1].append(method)
         info = filled.meta["fill_info"]
         errors = metrics.score(filled.points, np.nan_to_num(truth.points), mask)
         rows.append({"method": method, **{k: v * factor for k, v in errors.items()},
-                     "seconds": info["seconds"], "iterations": info["n_iter"]})
+                     "seconds": info["seconds"],
+                     "iterations": info["n_iter"] if _iterative(method) else None})
+    for w, where in said.values():              # each warning once, with the fills that gave it
+        also = f" (the fills of {', '.join(dict.fromkeys(where))})" if len(methods) > 1 else ""
+        warnings.warn_explicit(f"{w.message}{also}", w.category, w.filename, w.lineno)
     if args.json:
         print(json.dumps({"file": str(args.input), "protocol": args.protocol, **kwargs,
-                          "seed": args.seed, "units": units, "results": rows}, indent=2))
+                          "seed": args.seed, "units": units, "results": rows,
+                          "best": _best(rows, units, torchfill.default_method())}, indent=2))
     else:
         print(_table(rows, units))
+        print(_best(rows, units, torchfill.default_method()))
     return 0
+
+
+def _iterative(method: str) -> bool:
+    from torchfill.solvers import base
+
+    return bool(getattr(base._REGISTRY[method], "iterative", True))
+
+
+def _headline(message: str) -> str:
+    """A warning's text up to its first colon outside parentheses (its counts follow)."""
+    depth = 0
+    for i, ch in enumerate(message):
+        depth += (ch == "(") - (ch == ")")
+        if ch == ":" and depth == 0:
+            return message[:i]
+    return message
+
+
+def _best(rows: list[dict], units: str, default: str) -> str:
+    """One line: the method with the smallest error over the simulated gaps and its margin."""
+    ranked = sorted(rows, key=lambda r: r["rmse_missing"])
+    best = ranked[0]
+    line = f"best on this file: {best['method']} (rmse over the gaps {best['rmse_missing']:.4g} {units}"
+    if len(ranked) > 1:
+        other = ranked[1]
+        gap = other["rmse_missing"] - best["rmse_missing"]
+        line += (f", {gap:.3g} {units} ({100 * gap / other['rmse_missing']:.0f} %) below "
+                 f"{other['method']}")
+    mine = next((r for r in rows if r["method"] == default), None)
+    if mine is not None and default not in (best["method"], ranked[1]["method"] if len(ranked) > 1
+                                            else None):
+        line += (f"; the default {default}: {mine['rmse_missing']:.4g}, "
+                 f"{mine['rmse_missing'] - best['rmse_missing']:.3g} {units} more")
+    elif mine is not None and default == best["method"]:
+        line += "; it is the default"
+    return line + ")"
 
 
 #: Errors are reported in mm: factor from the file's units.
@@ -70,5 +118,6 @@ def _table(rows: list[dict], units: str) -> str:
              "rmse_missing over the gaps, gap_error = mean 3-D (2-D) error per gap", head, "-" * len(head)]
     for row in rows:
         lines.append(f"{row['method']:<12}" + "".join(
-            f"{row[c]:>14.4g}" if c != "iterations" else f"{row[c]:>14d}" for c in cols))
+            f"{row[c]:>14.4g}" if c != "iterations" else
+            f"{'-' if row[c] is None else row[c]:>14}" for c in cols))
     return "\n".join(lines)

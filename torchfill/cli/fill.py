@@ -21,9 +21,12 @@ def _cmd_fill(args) -> int:
     if args.session and not (len(args.input) > 1 or args.out_dir):
         raise ValueError("--session fills a batch: give several inputs and --out-dir DIR")
     if len(args.input) > 1 or args.out_dir or args.ray:
+        if args.axes or args.units:
+            raise ValueError("--axes/--units: give one input and -o OUT.trc")
         return _cmd_fill_batch(args)
     src = Path(args.input[0])
     plan, out_path, backup = _plan_fill(args, src)     # every check before any file is read
+    written_as = _trc_options(args, src, out_path)
     with plan:
         method, options = _fill_options(args, src)
         plan.keep_templates()
@@ -44,7 +47,7 @@ def _cmd_fill(args) -> int:
         if args.rejected == "drop":
             from torchfill import batch
             filled, rows = batch.drop_rejected(seq, filled, method)
-        plan.write_sequence(filled, out_path, backup=backup)
+        plan.write_sequence(filled, out_path, backup=backup, **written_as)
         written = [out_path]
         if std_path:
             _write_std(filled, std_path, plan)
@@ -66,6 +69,23 @@ def _cmd_fill(args) -> int:
                + ", ".join(map(str, written))
                + (f" (original kept as {backup})" if backup else ""))
     return 0
+
+
+def _trc_options(args, src: Path, out: Path) -> dict:
+    """The TRC writer's ``axes`` and ``units`` from ``--axes``/``--units``, checked now."""
+    if not (args.axes or args.units):
+        return {}
+    if out.suffix.lower() != ".trc":
+        raise ValueError(f"{out}: --axes/--units write TRC files (OpenSim); found "
+                         f"{out.suffix or 'no suffix'}")
+    from torchfill.sequence import parse_axes
+
+    try:
+        if args.axes:
+            parse_axes(args.axes)
+    except ValueError as err:
+        raise ValueError(f"{src}: --axes: {err}") from None
+    return {k: v for k, v in (("axes", args.axes), ("units", args.units)) if v}
 
 
 def _plan_fill(args, src: Path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 import ast
 import json
 import sys
-import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -14,42 +13,26 @@ from .terminal import _one_line
 def _fill_options(args, src) -> tuple[str, dict]:
     """The method and ``fill()`` keywords of the command line, checked before any file is read:
     method name and ``-p`` names with a "did you mean", values by the method's own checks."""
-    import difflib
-
-    from torchfill._catalog import entries, mentioned
+    from .names import check_params, method_names
 
     src = f"{src}: " if src is not None else ""
     if args.max_gap is not None and args.max_gap < 0:
         raise ValueError(f"{src}max_gap expected >= 0, found {args.max_gap}")
     params = _parse_params(args.param)
     _extrapolate(args)
-    if args.method is not None and not mentioned(args.method):     # a typo: say so before torch
-        names = [name for name, _ in entries()]        # read from the sources: no torch yet
-        if args.method not in names:
-            raise _unknown_method(src, args.method, names)
+    if args.method is not None:                 # a typo: say so before torch
+        args.method = method_names([args.method], src)[0]
     import torchfill
     from torchfill.solvers import base
 
     names = torchfill.methods()
     method = torchfill.default_method() if args.method is None else args.method
-    if method not in names:
-        raise _unknown_method(src, method, names)
     cls = base._REGISTRY[method]
     declared = [*cls.declared_params(), *cls._merged("renamed")]
     for key in params:
         if key in _FILL_OPTIONS and key not in declared:     # pma's own window is -p window=
             raise ValueError(f"{src}-p {key}: a fill option, give it as --{key.replace('_', '-')}")
-        if key not in declared:
-            close = difflib.get_close_matches(key, declared, n=1)
-            raise ValueError(f"{src}{method} has no hyperparameter {key!r}"
-                             + (f"; did you mean {close[0]!r}?" if close else "")
-                             + " ('torchfill methods -v' lists them)")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            base.get_solver(method, **params)
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"{src}{_one_line(err)}") from None
+    check_params([method], params, src)
     if (args.training or getattr(args, "session", False)) and "training" not in cls.fit_data:
         takes = [m for m in names if "training" in base._REGISTRY[m].fit_data]
         raise ValueError(f"{src}{method} takes no training data; methods that do: "
@@ -58,15 +41,6 @@ def _fill_options(args, src) -> tuple[str, dict]:
                | _segments(args))
     options["constraints"] = args.constraints
     return method, options
-
-
-def _unknown_method(src: str, method: str, names: list[str]) -> ValueError:
-    import difflib
-
-    close = difflib.get_close_matches(method, names, n=1)
-    return ValueError(f"{src}unknown method {method!r}"
-                      + (f"; did you mean {close[0]!r}?" if close else "")
-                      + " ('torchfill methods' lists them)")
 
 
 #: ``fill()`` keywords that have their own command-line option

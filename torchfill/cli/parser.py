@@ -49,6 +49,11 @@ def _add_fill(sub) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a method hyperparameter (repeatable), e.g. -p max_iter=200; "
                         "values as 'methods -v' shows them (True, None, (8, 8, 3)) or JSON")
+    p.add_argument("--axes", metavar="TURN",
+                   help="TRC output: turn every sample, 'zup-to-yup' (a lab's Z-up to OpenSim's "
+                        "Y-up), 'yup-to-zup' or a signed permutation such as 'x,z,-y'")
+    p.add_argument("--units", choices=("m", "cm", "mm"),
+                   help="TRC output: write every sample in these units (OpenSim: m)")
     p.add_argument("--report", metavar="REPORT.html", help="also write the qc report of the fill "
                    "(several inputs: a folder, or a name with {stem})")
     p.add_argument("--report-json", metavar="REPORT.json",
