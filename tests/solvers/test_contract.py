@@ -365,6 +365,16 @@ def test_transform_after_a_dtype_move_fills_the_fitted_data(method):
         torch.testing.assert_close(again.double(), out.double(), rtol=1e-4, atol=1e-2)
 
 
+@pytest.mark.parametrize("method", ["pchip", "svt", "grad_tucker", "grad_cp"])
+def test_data_that_require_grad_are_refused_with_one_line(method):
+    """No fill is differentiable with respect to its data (the gradient variants differentiate
+    their own factors): a tensor that requires grad is refused, not silently detached."""
+    X = torch.from_numpy(GAPPY).requires_grad_()
+    with pytest.raises(ValueError, match="require grad.*X.detach") as err:
+        make(method).fit(X)
+    assert "\n" not in str(err.value)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_state_dict_loads_into_a_fresh_solver_and_transform_agrees(method):
     solver, out = fitted(method, "float64")

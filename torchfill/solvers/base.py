@@ -71,6 +71,14 @@ class Param:
         return text + (" or None" if self.allow_none else "")
 
 
+def refuse_grad(X, owner: str) -> None:
+    """A one-line ``ValueError`` for data that require grad: a fill is not differentiable with
+    respect to its data (the solvers' updates run without autograd), so no gradient is kept."""
+    if isinstance(X, Tensor) and X.requires_grad:
+        raise ValueError(f"{owner}: the data require grad, but a fill is not differentiable with "
+                         "respect to its input; pass X.detach()")
+
+
 class NotConvergedWarning(UserWarning):
     """A fit stopped at ``max_iter`` before its stopping rule was met (the result is the last, or
     the best held-out, iterate; raise ``max_iter`` or loosen ``tol``)."""
@@ -409,6 +417,7 @@ class Solver(nn.Module):
         X = torch.as_tensor(X)
         if X.ndim < 2:
             raise ValueError(f"{self.name}: expected a tensor with time as its first mode, found shape {tuple(X.shape)}")
+        refuse_grad(X, self.name)
         dtype = compute_dtype(X.dtype)
         X = X.to(dtype)
         self.fit_data_ = {k: _as_dtype(v, dtype) for k, v in data.items() if v is not None}
