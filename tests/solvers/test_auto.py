@@ -150,6 +150,31 @@ def test_a_recording_with_few_gaps_gets_more_draws(min_gaps, draws, monkeypatch)
     assert stages.count("fit") + stages.count("draw") == draws
 
 
+def test_one_draw_where_its_held_out_gaps_are_many_distinct_windows(monkeypatch):
+    """Thirty short gaps, each at its own time: the first draw holds out thirty distinct
+    windows, enough alone; forty-eight gaps in four shared windows (twelve markers hidden
+    together) are four events, and draw again."""
+    def count(X):
+        solver = get_solver("auto", candidates=["pchip", "spline"])
+        stages, fit_all = [], Fits.fit_all
+
+        def spy(self, names, fit_missing, stage="fit", case=None):
+            stages.append(stage)
+            return fit_all(self, names, fit_missing, stage, case)
+        monkeypatch.setattr(Fits, "fit_all", spy)
+        solver.fit(torch.from_numpy(X))
+        monkeypatch.undo()
+        return stages.count("fit") + stages.count("draw")
+
+    apart, shared = _walk(T=600, J=12), _walk(T=600, J=12)
+    for k in range(30):
+        apart[40 + 17 * k:45 + 17 * k, k % 12] = np.nan
+    for a in (60, 200, 340, 480):
+        shared[a:a + 30] = np.nan
+        shared[a:a + 30, 0] = _walk(T=600, J=12)[a:a + 30, 0]     # one marker seen throughout
+    assert count(apart) == 1 and count(shared) > 1
+
+
 def test_consensus_weighs_down_the_candidate_that_strays_on_its_gap():
     """On a gap where one of four weighted candidates strays from the others, its weight falls
     below theirs; a gap where they agree keeps its weights' ratios; a gap with fewer than three

@@ -7,7 +7,8 @@ experiments/results/auto.md and docs/real-gaps.md:
 
 1. A hold-out ``V`` of observed samples shaped like the recording's own gaps (the gap pattern
    moved in time, the trial-end gaps mirrored onto the other trial end: :mod:`.selection.draws`).
-   More draws are pooled (``draws``, and up to ``MAX_DRAWS`` until ``min_gaps`` held-out gaps).
+   More draws are pooled (``draws``, and up to ``MAX_DRAWS`` until ``min_gaps`` held-out gaps),
+   except where the first draw's held-out gaps take many distinct windows (``ENOUGH_WINDOWS``).
 2. Every candidate (:mod:`.selection.candidates`) fits with ``V`` hidden and is scored on ``V``,
    through the ``post`` step ``fill()`` passes (its constraints), so candidates are scored on
    what ``fill()`` returns; held-out samples that rigid donors fill do not count. A candidate
@@ -110,7 +111,9 @@ class Auto(Solver):
         "min_gaps": Param(40, int, low=0,
                           doc="draw again (up to MAX_DRAWS draws) until the pooled draws hold "
                               "out this many gaps: a recording with few gaps gets a thin "
-                              "hold-out, whose draw decides the weights (0: exactly ``draws``)"),
+                              "hold-out, whose draw decides the weights; one draw where its "
+                              "held-out gaps take ENOUGH_WINDOWS distinct windows (0: exactly "
+                              "``draws``)"),
         "cross": Param(True, bool,
                        doc="with training data: trial-end gap kinds scored by the geometric mean "
                            "of the recording's hold-out and the cross-trial hold-out's mean "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 
+from ... import ops
 from ..holdout import mirrored_edge_holdout, shifted_gap_holdout
 from .candidates import PARTIAL, SESSION, Fits
 from .kinds import gap_index, sample_kinds
@@ -13,6 +14,9 @@ Tensor = torch.Tensor
 
 #: Most hold-out draws that ``min_gaps`` asks for.
 MAX_DRAWS = 4
+#: One draw is enough where its held-out gaps take this many distinct windows (:func:`windows`):
+#: many independent events (measured: experiments/results/auto.md).
+ENOUGH_WINDOWS = 20
 #: A ``+session`` twin's place in a later hold-out draw: not fitted there, its errors NaN, so
 #: its gap kinds' mean squared errors are those of the first draw alone (the twins fit the
 #: training trials' frames too, most of a session's time).
@@ -83,15 +87,26 @@ def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torc
     return scored(fits, names, outs, fit_missing, Xt, V)[0]
 
 
+def windows(V: Tensor, gap_ids: Tensor) -> int:
+    """How many distinct windows (start and stop frames) the held-out gaps ``gap_ids`` (indices
+    of ``V``'s runs, :func:`~.kinds.gap_index`) take: gaps of several markers hidden together
+    are one event of the recording, whatever the number of markers."""
+    runs = list(ops.runs(V))
+    return len({runs[i][1:] for i in gap_ids.unique().tolist()})
+
+
 def pooled(first: tuple, fits: Fits, names: list[str], seen: Tensor, V: Tensor,
            generator: torch.Generator, draws: int, min_gaps: int
            ) -> tuple[Tensor, Tensor, Tensor]:
     """The first draw's scores ``first`` and those of more draws, until ``draws`` are pooled and
     (up to ``MAX_DRAWS``) they hold out ``min_gaps`` gaps: the squared errors (C, N), kinds (N,)
-    and gap ids (N,; apart between the draws)."""
+    and gap ids (N,; apart between the draws). One draw is enough where its held-out gaps
+    take ``ENOUGH_WINDOWS`` distinct windows or more (:func:`windows`): many independent events,
+    not one window of many markers (``min_gaps=0``: exactly ``draws``)."""
     pool = [first]
-    while len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
-            int(p[2].unique().numel()) for p in pool) < min_gaps):
+    enough = min_gaps > 0 and windows(V, first[2]) >= ENOUGH_WINDOWS
+    while not enough and (len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
+            int(p[2].unique().numel()) for p in pool) < min_gaps)):
         pool.append(draw(fits, names, seen, V, generator))
     return (torch.cat([p[0] for p in pool], dim=1), torch.cat([p[1] for p in pool]),
             torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pool)]))
