@@ -54,10 +54,11 @@ Tensor = torch.Tensor
 #: Traced on 17 cases (observed hold-out only): where the 1e-4 schedule went on to win (343- to
 #: 1200-frame HDM05 / CMU cuts) its best was 0.25-1.63x the 1e-2 schedule's after 100 iterations
 #: and < 1.7x after its trial; where it did not win or by < 3 % (3000-6000-frame HDM05) 2.39-3.1x
-#: after 50 iterations.
+#: after 50 iterations. The trial, ``eps_trial / T`` iterations and at least ``EPS_TRIAL_MIN``, is
+#: >= 100 up to 1200 frames, where it won, and 30-40 from 3000 frames (see docs/speed.md).
 EPS_TRIAL_RATIO = 1.7
 #: Fewest iterations of a later schedule's trial.
-EPS_TRIAL_MIN = 50
+EPS_TRIAL_MIN = 30
 
 
 # ---------------------------------------------------------------------------------------------
@@ -248,9 +249,9 @@ class Tucker(Solver):
         **holdout_params("shifted_gaps", 0.05, ", the paper's schedule and its last iterate"),
         "patience": Param(40, int, low=1,
                           doc="search ends this many iterations after the best validation error"),
-        "eps_trial": Param(300_000, int, low=1,
+        "eps_trial": Param(120_000, int, low=1,
                            doc="budget in frames x iterations: a later eps schedule ends after "
-                               "max(50, eps_trial / T) iterations if its best held-out error is "
+                               "max(30, eps_trial / T) iterations if its best held-out error is "
                                "still above EPS_TRIAL_RATIO times the best so far"),
     }
 
