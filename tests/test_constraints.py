@@ -301,3 +301,30 @@ def test_walking_hybrid_default_fill_edges_and_every_missing_sample(recording):
         ends[a:b, j] = (a == 0) != (b == T)
     donors = out.meta["fill_info"]["constraints"].rigid_done
     assert spatial + time_ + left == int((ends & ~donors).sum())
+
+
+#: The recordings of the data folder with real gaps (PROVENANCE.md).
+REAL_GAPPED = [
+    "c3dorg_s00_codamotion_gaitwands_20150204.c3d", "c3dorg_s01_eb015pr.c3d",
+    "c3dorg_s02_pc_real.c3d", "c3dorg_s04_sub_labels.c3d", "c3dorg_s26_capture0002.c3d",
+    "c3dorg_s26_walking_hybrid_1_1.c3d", "c3dorg_s26_walking_hybrid_1_2.c3d",
+    "c3dorg_s26_walking_hybrid_1_3.c3d", "c3dorg_s26_walking_hybrid_1_4.c3d",
+    "c3dorg_s26_walking_hybrid_1_5.c3d", "c3dorg_s26_walking_hybrid_2.c3d",
+    "c3dorg_s28_type1.c3d", "ktk_basket_sprint.c3d", "ktk_c3d_sample_bts.c3d",
+    "ktk_racing_full.c3d", "mogapfill_gait-raw.csv", "numediart_03_rolling.c3d",
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", REAL_GAPPED)
+def test_the_default_fills_nothing_outside_the_observed_volume(recording, name):
+    """The default on every real gapped recording: no filled sample beyond the observed volume
+    widened by the constraints' margin (the bound :func:`metrics.volume` gives)."""
+    seq = torchfill.read(recording(name))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = torchfill.fill(seq)
+    missing = seq.mask
+    bounds = metrics.volume(seq.points, ~missing)
+    assert metrics.outside_volume(out.points, missing, bounds) == 0
+    assert np.array_equal(out.points[~missing], seq.points[~missing])

@@ -14,6 +14,7 @@ import torch
 
 from .constraints import constrain, constrain_candidates, meet_kept
 from .qc import EST_CHECK_MM, alone, per_mm, untested
+from .qc.finish import short_gap_fallback, std_bound
 from .metrics import gap_runs
 from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
@@ -384,6 +385,8 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
                 info["alone"] = _leave_alone(out, std, case.missing, data, case.seg_idx)
         if reject is not None and isinstance(data, MarkerSequence):
             info["rejected"] = _reject(out, std, case.missing, data.units, reject)
+        if case.method == "auto":
+            out, std = _short_gaps_and_bound(out, std, case, info)
     if bool(todo.any()):
         case.shown.close(f"{case.method} filled {int(todo.sum())} samples ({info['windows']} "
                          f"window(s), {info['n_iter']} iterations)")
@@ -717,6 +720,22 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     seq.meta["filled"] = missing.cpu().numpy() & np.isfinite(points).all(axis=2)  # mask= too
     seq.meta["fill_info"] = info
     return seq
+
+
+def _short_gaps_and_bound(out: torch.Tensor, std: torch.Tensor, case: _Case, info: dict):
+    """The default's short interior gaps kept on the interpolation across them where its fill
+    departs from it, and its estimate bounded by what the fill can be off
+    (:mod:`torchfill.qc.finish`); observed coordinates stay bit for bit."""
+    data = case.data
+    X = torch.where(case.missing[..., None], float("nan"), out).cpu().numpy()
+    seq = isinstance(data, MarkerSequence)
+    F, changed = short_gap_fallback(X, out.cpu().numpy(), data.rate if seq else None,
+                                    per_mm(data.units if seq else "mm", X.shape[2]))
+    info["short_gaps"] = len(changed)
+    if changed:
+        out = torch.where(case.own, out, torch.as_tensor(F, dtype=out.dtype, device=out.device))
+    bound = torch.as_tensor(std_bound(X, F), dtype=std.dtype, device=std.device)
+    return out, torch.minimum(std, bound)
 
 
 def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str,

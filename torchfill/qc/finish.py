@@ -1,0 +1,86 @@
+"""What the fill's finishing step takes from the QC: an error estimate bounded by what the fill
+can be off, and short gaps kept on the interpolation across them when the fill departs from it
+by more than its estimate allows (pure functions of the input, the fill and its estimate; the
+truth is never seen). Measured in docs/real-gaps.md ("How right the verdict is").
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import metrics
+from ..constraints import STEP_FACTOR, STEP_PERCENTILE
+from .verdicts import AGREE_MM, SHORT_SECONDS
+
+#: Interior gaps up to this many frames (and ``SHORT_SECONDS``) are kept on the interpolation
+#: across them when the fill departs from it by more than ``AGREE_MM``: on such gaps the
+#: interpolation errs by 0.1 mm (median), so a larger departure is the fill's error, and the
+#: fill's estimate does not see it (docs/real-gaps.md, "Short gaps").
+SHORT_FRAMES = 10
+#: Observed steps a marker needs for its own step limit; with fewer, the recording's.
+OWN_STEPS = 20
+
+
+def std_bound(points, filled, dims: int | None = None) -> np.ndarray:
+    """``(T, J)`` the largest per-coordinate error std a filled sample can have: its 3-D error
+    is at most the fill's distance from the gap's nearest observed edge sample plus how far the
+    marker can move in the frames between (its own step limit -- ``STEP_FACTOR`` x its
+    ``STEP_PERCENTILE``-th percentile observed step, the recording's with fewer than
+    ``OWN_STEPS`` -- per frame), and at most the observed volume's diagonal (both stay inside
+    it); divided by sqrt(D). ``inf`` where there is no bound (observed samples, no observed
+    edge), NaN never."""
+    X = np.asarray(points, dtype=np.float64)
+    F = np.asarray(filled, dtype=np.float64)
+    T, J, D = X.shape
+    D = dims or D
+    observed = np.isfinite(X).all(axis=2)
+    out = np.full((T, J), np.inf)
+    if not observed.any():
+        return out
+    lo, hi = metrics.volume(X, observed, 0.0)
+    diagonal = float(np.linalg.norm(hi - lo))
+    whole = metrics.step_limit(X, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
+    for j, a, b in metrics.gap_runs(~observed):
+        if not observed[:, j].any():
+            continue
+        own = observed[:, j]
+        cap = (metrics.step_limit(X[:, [j]], own[:, None], q=STEP_PERCENTILE, factor=STEP_FACTOR)
+               if (own[1:] & own[:-1]).sum() >= OWN_STEPS else whole)
+        t = np.arange(a, b)
+        best = np.full(b - a, np.inf)
+        for edge in (a - 1, b):
+            if 0 <= edge < T:
+                away = np.linalg.norm(F[a:b, j] - X[edge, j], axis=1) + abs(t - edge) * cap
+                best = np.fmin(best, away)
+        out[a:b, j] = np.minimum(best, diagonal) / math.sqrt(D)
+    return out
+
+
+def short_gap_fallback(points, filled, rate: float | None, per_mm: float = 1.0,
+                       side: int = 4) -> tuple[np.ndarray, list[tuple[int, int, int]]]:
+    """``(filled, gaps)``: a copy of ``filled`` where each interior gap of up to ``SHORT_FRAMES``
+    frames and ``SHORT_SECONDS`` (``rate`` in Hz; None: frames only) whose fill departs (RMS,
+    3-D) from the PCHIP interpolation through up to ``side`` observed samples on each side by
+    more than ``AGREE_MM`` (``per_mm``: file units per mm) holds that interpolation instead; and
+    those gaps ``(j, start, stop)``. Gaps not wholly filled are left as they are."""
+    from scipy.interpolate import PchipInterpolator
+
+    X = np.asarray(points, dtype=np.float64)
+    F = np.array(filled, dtype=np.float64, copy=True)
+    T = X.shape[0]
+    observed = np.isfinite(X).all(axis=2)
+    longest = min(SHORT_FRAMES, int(SHORT_SECONDS * rate + 1e-9) if rate else SHORT_FRAMES)
+    changed = []
+    for j, a, b in metrics.gap_runs(~observed):
+        if a == 0 or b == T or b - a > longest or not np.isfinite(F[a:b, j]).all():
+            continue
+        t = np.r_[np.arange(max(0, a - side), a), np.arange(b, min(T, b + side))]
+        t = t[observed[t, j]]
+        if t.size < 2:
+            continue
+        P = PchipInterpolator(t, X[t, j], axis=0)(np.arange(a, b))
+        if math.sqrt(np.mean(np.sum((F[a:b, j] - P) ** 2, axis=1))) > AGREE_MM * per_mm:
+            F[a:b, j] = P
+            changed.append((int(j), int(a), int(b)))
+    return F, changed
