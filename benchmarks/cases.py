@@ -82,6 +82,20 @@ def sources(folder: Path) -> list[tuple[str, np.ndarray, float, np.ndarray]]:
     return out
 
 
+def lay(source: tuple, truth: torchfill.MarkerSequence, seed: int, target_layout=None):
+    """(the first frames of ``truth``, the mask) with a ``sources()`` entry's mask laid on at its
+    length in seconds, each source marker on the truth marker at the most similar body place
+    (``target_layout``: default the laid frames' :func:`torchfill.gaps.body_layout`)."""
+    _, mask, rate, layout = source
+    T = min(int(round(mask.shape[0] * truth.rate / rate)), truth.n_frames)
+    part = truth.with_points(truth.points[:T])
+    if target_layout is None:
+        target_layout = gaps.body_layout(part.points, part.labels)
+    M = gaps.transplant(mask, T, part.n_markers, seed=seed, rate_ratio=truth.rate / rate,
+                        source_layout=layout, target_layout=target_layout)
+    return part, M
+
+
 def build_real_gaps(folder: Path, seeds: int = 1) -> list[Case]:
     """The real-gap cases from the gapped recordings: every source x (random, layout) x ``seeds``,
     each on the next target recording long enough for the source's mask (else the longest), cut

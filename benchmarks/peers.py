@@ -128,26 +128,31 @@ def pose2sim(seq: torchfill.MarkerSequence, gap: int = 10, kind: str = "cubic") 
     return np.stack(cols, axis=1).reshape(T, J, D)
 
 
-def saits(seq: torchfill.MarkerSequence, steps: int = 48, epochs: int = 20) -> np.ndarray:
-    """PyPOTS SAITS trained on the recording itself (its observed samples, windows of ``steps``
-    frames, coordinates standardised), then imputing it; a small model on the CPU."""
+def saits(seq: torchfill.MarkerSequence, steps: int = 48, stride: int = 8,
+          epochs: int = 100) -> np.ndarray:
+    """PyPOTS SAITS trained on the recording itself (windows of ``steps`` frames every
+    ``stride``, coordinates standardised, its observed samples only), then imputing the same
+    windows, averaged where they overlap; a small model on the CPU (docs/benchmark.md#peers)."""
     from pypots.imputation import SAITS
 
     T, J, D = seq.points.shape
     M = seq.points.reshape(T, J * D)
     mu, sd = np.nanmean(M, axis=0), np.nanstd(M, axis=0) + 1e-9
     Z = (M - mu) / sd
-    n = -(-T // steps)
-    W = np.full((n * steps, J * D), np.nan)
-    W[:T] = Z
-    W = W.reshape(n, steps, J * D)
+    steps = min(steps, T)
+    starts = sorted(set(range(0, T - steps + 1, stride)) | {T - steps})
+    W = np.stack([Z[a:a + steps] for a in starts])
     model = SAITS(n_steps=steps, n_features=J * D, n_layers=2, d_model=64, n_heads=4, d_k=16,
                   d_v=16, d_ffn=128, epochs=epochs, device="cpu", verbose=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model.fit({"X": W})
         out = model.impute({"X": W})
-    return (out.reshape(n * steps, J * D)[:T] * sd + mu).reshape(T, J, D)
+    acc, count = np.zeros_like(Z), np.zeros((T, 1))
+    for a, w in zip(starts, out):
+        acc[a:a + steps] += w
+        count[a:a + steps] += 1
+    return (acc / count * sd + mu).reshape(T, J, D)
 
 
 #: name -> (what it is, the module that must import, fill)
@@ -159,7 +164,8 @@ PEERS = {
     "iterative_imputer": ("scikit-learn IterativeImputer", "sklearn", iterative_imputer),
     "pose2sim": ("Pose2Sim interpolate_zeros_nans (cubic, gaps <= 10 frames)", "Pose2Sim.common",
                  pose2sim),
-    "saits": ("PyPOTS SAITS trained on the recording", "pypots.imputation", saits),
+    "saits": ("PyPOTS SAITS trained on the recording (CPU, 100 epochs)", "pypots.imputation",
+              saits),
 }
 
 

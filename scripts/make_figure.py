@@ -15,12 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import torchfill
+from torchfill.data import data_dir
+from torchfill.metrics import gap_runs
 
-import torchfill  # noqa: E402
-from torchfill.data import data_dir  # noqa: E402
-from torchfill.metrics import gap_runs  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> int:

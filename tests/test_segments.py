@@ -159,19 +159,15 @@ def test_rigid_on_a_real_mask_is_as_good_as_gapfill_and_keeps_observed_samples(r
     """biomechZoo hockey (Plug-in Gait) with the real gaps of walking_hybrid_1_1 laid on it:
     on the samples gapfill's recover_marker_rbt fills with the same named segments, the rigid
     method's RMSE is at most gapfill's; observed samples are returned bit-identical."""
-    gapfill_script = pytest.importorskip("gapfill")      # noqa: F841 - the peer must be there
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    from eval_segments import gapfill_fill
+    pytest.importorskip("gapfill")                      # the peer must be there
+    from benchmarks import peers
 
     truth, mask = _case(recording, "biomechzoo_hockey_wrist_shot_009.c3d",
                         "c3dorg_s26_walking_hybrid_1_1.c3d")
     P = truth.points.copy()
     P[mask] = np.nan
     seq = truth.with_points(P)
-    seg = Segments.from_names(seq.labels).indices(seq.labels)
-    GF = gapfill_fill(P, seg)
+    GF = peers.fill("gapfill", seq)                      # named segments, as rigid's
     on = np.isfinite(GF).all(axis=2) & mask
     assert on.sum() > 50
     with warnings.catch_warnings():

@@ -7,7 +7,9 @@ import argparse
 import importlib
 
 #: subcommand -> module under benchmarks.suites
-SUITES = {"real-gaps": "real_gaps", "masks": "masks", "ik": "ik", "docs": "docs"}
+SUITES = {"real-gaps": "real_gaps", "masks": "masks", "ik": "ik", "segments": "segments",
+          "qc": "qc", "session": "session", "speed": "speed", "peers": "peers",
+          "papers": "papers", "docs": "docs", "fuzz": "fuzz"}
 
 
 def load(name: str):

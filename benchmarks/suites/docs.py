@@ -162,7 +162,7 @@ def fill_tables(text: str) -> str:
 
 
 #: The suites whose stored rows feed docs blocks.
-BLOCK_SUITES = ("real-gaps", "masks", "ik")
+BLOCK_SUITES = ("real-gaps", "masks", "ik", "segments", "qc", "session", "speed")
 
 
 def suite_blocks() -> dict[tuple[Path, str], str]:

@@ -23,13 +23,14 @@ QUICK_METHODS = ("default", "linear", "pchip", "pma", "rigid")
 
 def add_arguments(p) -> None:
     case_arguments(p, str(CSV))
-    p.add_argument("--methods", default=",".join((methods.DEFAULT, *methods.SINGLES)),
+    p.add_argument("--methods", default=None,
                    help="comma-separated: 'default' (fill()'s default), torchfill methods, "
                         "peer:NAME (python -m benchmarks peers --list); 'peers': every peer "
-                        "that imports here")
+                        "that imports here (default: the default and "
+                        f"{', '.join(methods.SINGLES)}; with --quick {', '.join(QUICK_METHODS)})")
     p.add_argument("--quick", action="store_true",
-                   help=f"the {len(C.QUICK)} quick cases and {', '.join(QUICK_METHODS)} "
-                        "(rows in a scratch CSV unless --csv is given)")
+                   help=f"the {len(C.QUICK)} quick cases (rows kept in memory unless --csv "
+                        "is given)")
     p.add_argument("--split", choices=("all", "tuning", "held-out"), default="all",
                    help="held-out masks are never used for a choice of the default")
     p.add_argument("--seed", type=int, default=0, help="the default's seed (its hold-out draws)")
@@ -59,8 +60,8 @@ def main(args) -> int:
     if args.list:
         C.print_cases(suite)
         return 0
-    names = method_names(",".join(QUICK_METHODS) if args.quick and "--methods" not in
-                         _argv() else args.methods)
+    names = method_names(args.methods or ",".join(
+        QUICK_METHODS if args.quick else (methods.DEFAULT, *methods.SINGLES)))
     csv = args.csv if not (args.quick and args.csv == str(CSV)) else None
     rows = Rows(csv or None, ("case", "method"))
     gaps: list = []
@@ -73,11 +74,6 @@ def main(args) -> int:
     if args.doc:
         write_block(args.doc, "real_gaps", text)
     return 0
-
-
-def _argv() -> list[str]:
-    import sys
-    return sys.argv
 
 
 def by_case(rows: list[dict]) -> dict[str, dict[str, dict]]:

@@ -1,22 +1,16 @@
-"""A small seeded run of ``scripts/fuzz_io.py``: mutated C3D/TRC/CSV/NPZ/NPY files
+"""A small seeded run of the fuzz suite (``python -m benchmarks fuzz``): mutated C3D/TRC/CSV/NPZ/NPY files
 through read -> fill -> write -> read must keep every rule (one-line errors, nothing written on
 error, observed samples and everything else kept). The full run (>= 5000 mutants) is in the
 README; this one is the regression guard."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "fuzz_io.py"
 
 
 def _fuzz():
-    spec = importlib.util.spec_from_file_location("fuzz_io", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from benchmarks.suites import fuzz
+
+    return fuzz
 
 
 def test_seeded_fuzz_synthetic(tmp_path):
@@ -28,7 +22,7 @@ def test_seeded_fuzz_synthetic(tmp_path):
 
 def test_seeded_fuzz_real_recordings(tmp_path):
     fuzz = _fuzz()
-    if not fuzz.DATA.is_dir():
-        pytest.skip(f"shared recordings not found at {fuzz.DATA}")
+    if not fuzz.data.folder().is_dir():
+        pytest.skip(f"shared recordings not found at {fuzz.data.folder()}")
     result = fuzz.run(40, seed=19, real=True, workdir=tmp_path)
     assert result["violations"] == []

@@ -1,36 +1,34 @@
-"""Calibrate and check the QC verdict (torchfill.qc) on gaps whose truth is known.
+"""The QC verdicts (torchfill.qc) checked on gaps whose truth is known, and the plausibility of
+fills on the real gaps of the gapped recordings (no truth there).
 
 Cases, deterministic from seeds:
 
 - ``ktk_tennis_serve_nan`` against its clean twin ``ktk_tennis_serve``;
-- real gap masks laid onto complete recordings: the missing-marker masks of real gapped files
-  (walking_hybrid, s28_type1, ktk_basket_sprint, c3d_sample_bts, codamotion, numediart) over a
-  stretch of a complete recording (HDM05, CMU, OpenSim TRCs, ...) of the source's length, source
-  markers assigned to truth markers at random (seeded); a sample is hidden only where the truth is
-  observed. ``torchfill.gaps.transplant`` is used instead when the package has it.
+- real gap masks laid onto complete recordings (``TRANSPLANTS``): the missing-marker masks of real
+  gapped files over a stretch of a complete recording of the source's length, source markers
+  assigned to truth markers at random (seeded); a sample is hidden only where the truth is
+  observed.
 
 Each case is filled once with the default method (``return_std=True``, default extrapolation
-limit) and cached (``--cache``); the table then judges every filled gap with ``qc.gap_table`` --
-which sees the input, the fill and its std, never the truth -- and compares the verdict with the
-gap's true RMS error (3-D, over its filled frames). The targets:
+limit) and cached (``--cache``); every filled gap is then judged with ``qc.gap_table`` -- which
+sees the input, the fill and its std, never the truth -- and the verdict compared with the gap's
+true RMS error (3-D, over its filled frames). The targets:
 
 - of the gaps whose true RMS error is above both 10 mm and 3 x the case's median gap error,
   >= 90 % are ``check`` or ``reject``;
 - of the gaps below 5 mm, <= 15 % are not ``ok``.
 
-The split: the thresholds of ``torchfill.qc`` were chosen on this script's own cases (group
-``own``: the tennis file and the transplants above); the real-gap-pattern suite
-(``scripts/real_gap_suite.py``, group ``suite``) is held out, and its cases whose mask comes from a
-source file the own cases do not use are listed apart (``held out, new sources``). The tennis file
-is in the own group: its line shows the verdict on a case the thresholds were chosen with.
-``--doc PAGE`` writes the tables into that page's ``calibrate_qc`` block (scripts/docblock.py)::
+The split: the thresholds of ``torchfill.qc`` were chosen on this suite's own cases (group
+``own``: the tennis file and the transplants); the real-gap benchmark's cases (group ``suite``)
+are held out, and its cases whose mask comes from a source file the own cases do not use are
+listed apart (``held out, new sources``)::
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python scripts/calibrate_qc.py [--cache DIR]
-        [--only NAME ...] [--group own|suite|all] [--refill] [--rows] [--doc docs/real-gaps.md]
+    OMP_NUM_THREADS=1 python -m benchmarks qc [--cache DIR] [--only NAME ...]
+        [--group own|suite|all] [--refill] [--rows] [--doc docs/real-gaps.md]
+    OMP_NUM_THREADS=1 python -m benchmarks qc --plausibility [--methods default,pchip]
 """
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 import time
@@ -39,12 +37,22 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import spearmanr
 
 import torchfill
-from torchfill import qc
+from torchfill import metrics
+from torchfill.solvers.rigid import rigid_pairs
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("TORCHFILL_DATA") or REPO / ".." / "shared" / "data").resolve()
+from .. import data, scores
+from ..cases import load_masks
+from ..methods import spatial
+from ..rows import read_csv, write_csv
+from ..tables import write_block
+
+HELP = "the per-gap verdicts against the truth, and plausibility on real gaps (--plausibility)"
+GAPS = data.RESULTS / "qc" / "gaps.csv"
+DOC = data.DOCS / "real-gaps.md"
+COMMAND = "python -m benchmarks qc --doc docs/real-gaps.md"
 
 #: name, gap source (its mask), truth recording, seed
 TRANSPLANTS = [
@@ -65,15 +73,12 @@ TRANSPLANTS = [
 #: Frames kept at most per case (long sources are cut to a window that keeps a trial end).
 MAX_FRAMES = 1500
 
-MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0}
-
-
 def transplant_case(source: str, truth: str, seed: int):
     """(gappy, truth) MarkerSequences: ``source``'s mask over a stretch of ``truth``."""
     rng = np.random.default_rng(seed)
-    src = torchfill.read(DATA / source).mask
+    src = torchfill.read(data.folder() / source).mask
     src = src[:, ~src.all(axis=0)]                       # markers never seen carry no pattern
-    full = torchfill.read(DATA / truth)
+    full = torchfill.read(data.folder() / truth)
     keep = ~full.mask.any(axis=0)                        # complete truth markers only
     full = full.select(np.flatnonzero(keep))
     T = min(len(src), full.n_frames, MAX_FRAMES)
@@ -91,14 +96,8 @@ def transplant_case(source: str, truth: str, seed: int):
 
 
 def suite_cases(only=None):
-    """The real-gap-pattern suite (scripts/real_gap_suite.py), when this checkout has it."""
-    import sys
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        import real_gap_suite
-    except ImportError:
-        return
-    for case in real_gap_suite.cases(DATA):
+    """The real-gap benchmark's cases (held out from the thresholds)."""
+    for case in load_masks(data.folder()):
         if only and case.name not in only:
             continue
         yield case.name, lambda c=case: (c.gapped(), c.truth)
@@ -112,8 +111,8 @@ def cases(only=None, group="all"):
     if group == "suite":
         return
     if not only or "tennis" in only:
-        gappy = torchfill.read(DATA / "ktk_tennis_serve_nan.c3d")
-        truth = torchfill.read(DATA / "ktk_tennis_serve.c3d")
+        gappy = torchfill.read(data.folder() / "ktk_tennis_serve_nan.c3d")
+        truth = torchfill.read(data.folder() / "ktk_tennis_serve.c3d")
         yield "tennis", lambda: (gappy, truth)
     for name, source, truth, seed in TRANSPLANTS:
         if only and name not in only:
@@ -144,25 +143,10 @@ def filled_case(name, make, cache: Path, refill: bool) -> dict:
 
 def judged(name: str, d: dict) -> list[dict]:
     """The qc rows of a case plus each gap's true RMS error in mm (NaN where nothing was filled)."""
-    units = str(d["units"])
-    from torchfill.solvers import base
-    spatial = bool(getattr(base._REGISTRY.get(str(d["method"])), "spatial", False))
-    rows = qc.gap_table(d["points"], d["filled"], float(d["rate"]), list(d["labels"]),
-                        std=d["std"], units=units, spatial=spatial)
-    F, truth = d["filled"], d["truth"]
+    rows = scores.verdicts(d["points"], d["filled"], d["truth"], float(d["rate"]), list(d["labels"]),
+                           std=d["std"], units=str(d["units"]), spatial=spatial(str(d["method"])))
     for r in rows:
-        j, a, b = r["j"], r["start"], r["stop"]
-        e = np.linalg.norm(F[a:b, j] - truth[a:b, j], axis=1)
-        e = e[np.isfinite(e)]
         r["case"] = name
-        r["true_mm"] = float(np.sqrt(np.mean(e ** 2))) * MM.get(units, 1.0) if e.size else np.nan
-        r["est_mm"] = r["est_rmse"] * MM.get(units, 1.0)
-    scored = [r["true_mm"] for r in rows if np.isfinite(r["true_mm"])]
-    med = float(np.median(scored)) if scored else np.nan
-    for r in rows:
-        r["median_mm"] = med
-        r["big"] = bool(r["true_mm"] > 10.0 and r["true_mm"] > 3 * med)
-        r["small"] = bool(r["true_mm"] < 5.0)
     return rows
 
 
@@ -241,22 +225,32 @@ def markdown(rows: list[dict], command: str) -> str:
     return "\n".join(out)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "torchfill_qc_cal"),
-                        help="fills are cached here (delete it, or --refill, after the default "
-                             "method changes)")
-    parser.add_argument("--only", nargs="*")
-    parser.add_argument("--refill", action="store_true")
-    parser.add_argument("--cached-only", action="store_true",
-                        help="judge only the cases already filled in the cache")
-    parser.add_argument("--rows", action="store_true", help="print every big or flagged gap")
-    parser.add_argument("--group", choices=("own", "suite", "all"), default="all",
-                        help="own: tennis + this script's transplants (the thresholds were chosen "
-                             "on these); suite: the real-gap-pattern suite (held out)")
-    parser.add_argument("--doc", type=Path, help="also write the tables into this docs page, "
-                                                 "between <!-- calibrate_qc:start/end --> markers")
-    args = parser.parse_args()
+def add_arguments(p) -> None:
+    p.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "torchfill_qc_cal"),
+                   help="fills are cached here (delete it, or --refill, after the default "
+                        "method changes)")
+    p.add_argument("--only", nargs="*")
+    p.add_argument("--refill", action="store_true")
+    p.add_argument("--cached-only", action="store_true",
+                   help="judge only the cases already filled in the cache")
+    p.add_argument("--rows", action="store_true", help="print every big or flagged gap")
+    p.add_argument("--group", choices=("own", "suite", "all"), default="all",
+                   help="own: tennis + the transplants (the thresholds were chosen on these); "
+                        "suite: the real-gap benchmark (held out)")
+    p.add_argument("--csv", default=str(GAPS), help="per-gap rows ('' : none)")
+    p.add_argument("--doc", type=Path, help="also write the tables into this docs page, "
+                                            "between <!-- qc:start/end --> markers")
+    p.add_argument("--plausibility", action="store_true",
+                   help="instead: plausibility of fills on the real gaps (no truth)")
+    p.add_argument("--methods", default=",".join(PLAUSIBLE_METHODS),
+                   help="with --plausibility: methods ('NAME+c': with the post-step)")
+    p.add_argument("--files", default=",".join(PLAUSIBLE_FILES),
+                   help="with --plausibility: the recordings")
+
+
+def main(args) -> int:
+    if args.plausibility:
+        return plausibility_main(args)
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -266,10 +260,10 @@ def main() -> None:
         d = filled_case(name, make, cache, args.refill)
         got = judged(name, d)
         rows += got
-        n = len(got)
         print(f"{name:<14} {str(d['method']):<11} {d['points'].shape[0]:>5} frames "
-              f"{d['points'].shape[1]:>3} markers {n:>4} gaps, fill {float(d['seconds']):6.1f} s, "
-              f"median gap error {got[0]['median_mm'] if got else np.nan:6.2f} mm", flush=True)
+              f"{d['points'].shape[1]:>3} markers {len(got):>4} gaps, fill "
+              f"{float(d['seconds']):6.1f} s, median gap error "
+              f"{got[0]['median_mm'] if got else np.nan:6.2f} mm", flush=True)
     print()
     for label, test in GROUPS:
         sel = [r for r in rows if test(group_of(r["case"]), r["case"])]
@@ -277,10 +271,10 @@ def main() -> None:
             print(f"{label}, {len({r['case'] for r in sel})} case(s):\n{confusion(sel)}\n")
     for name in dict.fromkeys(r["case"] for r in rows):
         print(f"  {name}: " + confusion([r for r in rows if r["case"] == name]).splitlines()[-1])
+    if args.csv:
+        write_csv(args.csv, [{k: r[k] for k in STORED} for r in rows])
     if args.doc:
-        from docblock import write_block
-        write_block(args.doc, "calibrate_qc", markdown(rows, "python scripts/calibrate_qc.py "
-                                                             f"--doc {args.doc}"))
+        write_block(args.doc, "qc", markdown(rows, COMMAND))
     if args.rows:
         print("\ncase           marker       frames   true_mm est_mm verdict  reasons")
         for r in rows:
@@ -288,7 +282,106 @@ def main() -> None:
                 print(f"{r['case']:<14} {r['marker'][:12]:<12} {r['start']:>4}-{r['stop'] - 1:<5}"
                       f"{r['true_mm']:>7.1f} {r['est_mm']:>6.1f} {r['verdict']:<7}  "
                       f"{'; '.join(r['reasons'])}")
+    return 0
 
 
-if __name__ == "__main__":
-    main()
+#: The per-gap columns stored (enough to regenerate the tables).
+STORED = ("case", "marker", "start", "stop", "verdict", "true_mm", "est_mm", "median_mm", "big",
+          "small")
+
+
+def doc_blocks() -> dict:
+    """docs/real-gaps.md's verdict tables from the stored per-gap rows."""
+    rows = read_csv(GAPS)
+    for r in rows:
+        r["true_mm"] = float(r["true_mm"])
+        r["big"], r["small"] = r["big"] == "True", r["small"] == "True"
+    return {(DOC, "qc"): markdown(rows, COMMAND)} if rows else {}
+
+
+# ---------------------------------------------------------------------------------------------
+# Plausibility on the real gaps (no truth)
+# ---------------------------------------------------------------------------------------------
+#: The 17 recordings with real gaps (PROVENANCE.md): gaps in markers that are observed at times.
+#: ktk_tennis_serve_nan.c3d (artificial gaps) is scored against its twin instead, and
+#: osim_hamner_subject02_running.trc only lacks a never-observed marker.
+PLAUSIBLE_FILES = [
+    "c3dorg_s00_codamotion_gaitwands_20150204.c3d", "c3dorg_s01_eb015pr.c3d",
+    "c3dorg_s02_pc_real.c3d", "c3dorg_s04_sub_labels.c3d", "c3dorg_s26_capture0002.c3d",
+    "c3dorg_s26_walking_hybrid_1_1.c3d", "c3dorg_s26_walking_hybrid_1_2.c3d",
+    "c3dorg_s26_walking_hybrid_1_3.c3d", "c3dorg_s26_walking_hybrid_1_4.c3d",
+    "c3dorg_s26_walking_hybrid_1_5.c3d", "c3dorg_s26_walking_hybrid_2.c3d",
+    "c3dorg_s28_type1.c3d", "ktk_basket_sprint.c3d", "ktk_c3d_sample_bts.c3d",
+    "ktk_racing_full.c3d", "mogapfill_gait-raw.csv", "numediart_03_rolling.c3d",
+]
+PLAUSIBLE_METHODS = ["default", "tucker_tnn", "cp", "pchip", "linear"]
+
+
+def run(seq, method: str, std: bool = False):
+    """A fill as a user calls it (``default``), or a method's own (``NAME+c``: with the post-step)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        start = time.perf_counter()
+        if method == "default":
+            out = torchfill.fill(seq, return_std=std)
+        else:
+            name, constrained = method.removesuffix("+c"), method.endswith("+c")
+            out = torchfill.fill(seq, name, constraints=constrained, return_std=std)
+        return out, time.perf_counter() - start
+
+
+def plausibility(seq, out) -> dict:
+    X = seq.points
+    missing = seq.mask
+    observed = ~missing
+    pairs = rigid_pairs(np.where(observed[..., None], X, np.nan))        # near neighbours only
+    rigid = pairs.matrix(pairs.rigid & ~pairs.duplicate, fill=False)
+    dev = metrics.rigid_deviation(out.points, missing, rigid, pairs.matrix(pairs.distance))
+    jumps = metrics.edge_jumps(out.points, missing)
+    scale = 1000.0 if seq.units.strip().lower() == "m" else 1.0       # report mm
+    return {
+        "teleports": metrics.teleports(out.points, missing, metrics.step_limit(X, observed)),
+        "jumps": metrics.marker_jumps(out.points, missing, observed),
+        "outside": metrics.outside_volume(out.points, missing, metrics.volume(X, observed)),
+        "rigid_med": scale * float(np.median(dev)) if dev.size else np.nan,
+        "rigid_p95": scale * float(np.percentile(dev, 95)) if dev.size else np.nan,
+        "edge_p95": scale * float(np.percentile(jumps, 95)) if jumps.size else np.nan,
+        "nan_left": int((missing & ~np.isfinite(out.points).all(axis=2)).sum()),
+    }
+
+
+def plausibility_main(args) -> int:
+    """Per file and method: teleports, jumps, samples outside the observed volume, rigid-pair
+    deviation, edge velocity jumps, samples left NaN, seconds; then the tennis file's error."""
+    methods = args.methods.split(",")
+    cols = ["teleports", "jumps", "outside", "rigid_med", "rigid_p95", "edge_p95", "nan_left", "seconds"]
+    print(f"{'file':<44} {'method':<11}" + "".join(f"{c:>10}" for c in cols))
+    for name in filter(None, args.files.split(",")):
+        seq = torchfill.read(data.folder() / name)
+        for method in methods:
+            out, seconds = run(seq, method)
+            row = {**plausibility(seq, out), "seconds": seconds}
+            print(f"{name[:44]:<44} {method:<11}" + "".join(
+                f"{row[c]:>10.3g}" if isinstance(row[c], float) else f"{row[c]:>10d}"
+                for c in cols),
+                flush=True)
+    clean = torchfill.read(data.folder() / "ktk_tennis_serve.c3d")
+    gappy = torchfill.read(data.folder() / "ktk_tennis_serve_nan.c3d")
+    for method in methods:
+        auto = method.startswith("auto")
+        out, _ = run(gappy, method, std=auto)
+        out, std = out if auto else (out, None)
+        err = 1000 * metrics.gap_error(out.points, clean.points, gappy.mask)
+        e3 = np.linalg.norm(out.points - clean.points, axis=2)
+        mean3d = 1000 * float(e3[gappy.mask].mean())
+        line = (f"ktk_tennis_serve_nan vs clean  {method:<11} mean 3-D error {mean3d:.2f} mm "
+                f"(mean per gap {err:.2f} mm)")
+        if auto:
+            m = gappy.mask & np.isfinite(std)
+            runs = metrics.gap_runs(gappy.mask)
+            real = [np.sqrt(np.nanmean(e3[a:b, j] ** 2)) for j, a, b in runs]
+            est = [np.nanmean(std[a:b, j]) for j, a, b in runs]
+            line += (f"; within 2 sqrt(3) std {np.mean(e3[m] <= 2 * np.sqrt(3) * std[m]):.2f}, "
+                     f"Spearman per gap {spearmanr(real, est).statistic:.2f} ({len(runs)} gaps)")
+        print(line, flush=True)
+    return 0

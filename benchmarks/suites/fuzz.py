@@ -19,13 +19,12 @@ encodings, NPZ members) and each mutant goes through ``torchfill fill IN -o OUT 
 
 Usage::
 
-    OMP_NUM_THREADS=1 nice python scripts/fuzz_io.py -n 5000 --seed 0 --report fuzz.json
+    OMP_NUM_THREADS=1 nice python -m benchmarks fuzz -n 5000 --seed 0 --report fuzz.json
 
 It prints the number of mutants, outcomes and rule violations (with examples).
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -40,16 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+import torchfill
+from torchfill import cli
+from torchfill.io import c3d as c3d_io
+from torchfill.sequence import MarkerSequence
 
-import torchfill                                         # noqa: E402
-from torchfill import cli                                # noqa: E402
-from torchfill.io import c3d as c3d_io                   # noqa: E402
-from torchfill.sequence import MarkerSequence            # noqa: E402
-from torchfill.data import data_dir                    # noqa: E402
+from .. import data
 
-DATA = data_dir(REPO)   # $TORCHFILL_DATA or ../shared/data
+HELP = "mutated C3D/TRC/CSV/NPZ/NPY files through read -> fill -> write -> read: the file rules"
 SPECIAL_TEXT = ["nan", "NaN", "inf", "-inf", "1e400", "-1e400", "1e18", "1e34", "1e300", "-0",
                 "0", "0.0", "", " ", "abc", "1,5", "0x10", "1e-320", "１２", "+", ".", "e5",
                 "9" * 400, "1e", "--1", "\x00", "Ä"]
@@ -110,8 +107,8 @@ def build_corpus(folder: Path, rng, *, real: bool = True, max_bytes: int = 800_0
                 seeds.append(path)
         _int16_c3d(folder / f"syn{k}_i16.c3d", seq, 0.1 if k % 2 else 0.05)
         seeds.append(folder / f"syn{k}_i16.c3d")
-    if real and DATA.is_dir():
-        seeds += sorted(p for p in DATA.iterdir() if p.suffix.lower() in (".c3d", ".trc", ".csv")
+    if real and data.folder().is_dir():
+        seeds += sorted(p for p in data.folder().iterdir() if p.suffix.lower() in (".c3d", ".trc", ".csv")
                         and p.stat().st_size <= max_bytes)
     return seeds
 
@@ -472,13 +469,14 @@ def run(n: int, seed: int = 0, *, real: bool = True, workdir: Path | None = None
             "by_operator": {"|".join(k): v for k, v in sorted(by_op.items())}}
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-n", type=int, default=5000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-real", action="store_true", help="synthetic seeds only")
-    parser.add_argument("--report", help="write the full result as JSON here")
-    args = parser.parse_args(argv)
+def add_arguments(p) -> None:
+    p.add_argument("-n", type=int, default=5000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-real", action="store_true", help="synthetic seeds only")
+    p.add_argument("--report", help="write the full result as JSON here")
+
+
+def main(args) -> int:
     result = run(args.n, args.seed, real=not args.no_real, log=sys.stdout)
     print(f"mutants {result['n']} from {result['seeds']} seed files, outcomes "
           f"{result['outcomes']}, rule violations {len(result['violations'])}, "
@@ -487,6 +485,3 @@ def main(argv=None) -> int:
         Path(args.report).write_text(json.dumps(result, indent=1, default=str))
     return 1 if result["violations"] else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
