@@ -155,6 +155,29 @@ def saits(seq: torchfill.MarkerSequence, steps: int = 48, stride: int = 8,
     return (acc / count * sd + mu).reshape(T, J, D)
 
 
+def mogapfill(seq: torchfill.MarkerSequence) -> np.ndarray:
+    """Burke & Lasenby's low-dimensional Kalman smoother (MoGapFill ``smooth.smooth``, its
+    defaults ``tol=0.0025, sigR=1e-3``) on the frames x 3J matrix. Its code is not part of this
+    repository: ``$MOGAPFILL_SMOOTH`` names a copy of its ``smooth.py`` (docs/benchmark.md#peers).
+    It needs complete frames for its subspace; without any it fills nothing."""
+    import contextlib
+    import io
+    import os
+    from importlib.util import module_from_spec, spec_from_file_location
+
+    spec = spec_from_file_location("mogapfill_smooth", os.environ["MOGAPFILL_SMOOTH"])
+    module = module_from_spec(spec)
+    spec.loader.exec_module(module)
+    T, J, D = seq.points.shape
+    M = seq.points.reshape(T, J * D)
+    if not np.isfinite(M).all(axis=1).any():
+        return np.full_like(seq.points, np.nan)
+    np.random.seed(0)                                   # its initial state is drawn
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(module.smooth(M.copy()), dtype=np.float64).reshape(T, J, D)
+
+
 #: name -> (what it is, the module that must import, fill)
 PEERS = {
     "gapfill": ("gapfill 0.0.7 recover_marker_rbt, named segments", "gapfill", gapfill),
@@ -164,6 +187,7 @@ PEERS = {
     "iterative_imputer": ("scikit-learn IterativeImputer", "sklearn", iterative_imputer),
     "pose2sim": ("Pose2Sim interpolate_zeros_nans (cubic, gaps <= 10 frames)", "Pose2Sim.common",
                  pose2sim),
+    "mogapfill": ("Burke & Lasenby Kalman smoother (MoGapFill)", "$MOGAPFILL_SMOOTH", mogapfill),
     "saits": ("PyPOTS SAITS trained on the recording (CPU, 100 epochs)", "pypots.imputation",
               saits),
 }
@@ -174,6 +198,9 @@ def available(name: str) -> bool:
     try:
         if name == "gapfill":
             np.int = int
+        if PEERS[name][1].startswith("$"):
+            import os
+            return os.path.isfile(os.environ.get(PEERS[name][1][1:], ""))
         importlib.import_module(PEERS[name][1])
         return True
     except Exception:                                       # noqa: BLE001 - any import failure

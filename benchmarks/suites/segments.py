@@ -15,6 +15,7 @@ time of ``rigid`` on 3 000 frames x 41 markers::
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -179,9 +180,10 @@ def main(args) -> int:
     print("\ndata-found segments vs named tables (share of memberships)\n" + agreement_table(agree))
     speed = timing(folder)
     print("\n" + speed)
-    if args.csv:
-        write_csv(AGREE, agree)
-        write_csv(RUN, [{"methods": ",".join(methods), "timing": speed}])
+    if args.csv:                        # beside the rows: what docs/segments.md is made of
+        folder = Path(args.csv).parent
+        write_csv(folder / AGREE.name, agree)
+        write_csv(folder / RUN.name, [{"methods": ",".join(methods), "timing": speed}])
     if args.doc:
         write_block(args.doc, "segments", doc_text(got, methods, agree, speed))
     return 0
