@@ -127,3 +127,22 @@ def test_readme_is_short_and_about_the_software():
                         r"\bhelper\b", r"\bload average\b"):
             found = re.search(pattern, body)
             assert not found, f"{page.name}: {found.group(0)!r}"
+
+
+CODE_LINK = re.compile(r"\b((?:docs|experiments/results)/[\w./-]*[\w/-](?:#[\w-]+)?)")
+
+
+def test_links_from_code_comments_into_docs_and_results_resolve():
+    """Module comments and docstrings keep one line and a link to docs/ or experiments/results/
+    (the numbers live there): every such link names a file or folder that exists, and an anchor
+    one of the page's headings."""
+    broken = []
+    for path in sorted([*(ROOT / "torchfill").rglob("*.py"), *(ROOT / "benchmarks").rglob("*.py")]):
+        for m in CODE_LINK.finditer(path.read_text(encoding="utf-8")):
+            target, _, anchor = m.group(1).partition("#")
+            dest = ROOT / target.rstrip(".")
+            if not dest.exists():
+                broken.append(f"{path.relative_to(ROOT)}: {m.group(1)}")
+            elif anchor and anchor not in _anchors(dest):
+                broken.append(f"{path.relative_to(ROOT)}: {m.group(1)}")
+    assert not broken, broken

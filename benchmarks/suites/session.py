@@ -10,7 +10,7 @@ own gaps included). Prints per case the RMSE over the hidden samples (mm) and th
 the mean ratio on the trial-end-dominated cases and the worst ratio over all cases.
 ``--timing`` instead times a batch (``torchfill fill DIR/*.c3d``) with and without ``--session``::
 
-    OMP_NUM_THREADS=1 python -m benchmarks session --csv experiments/results/session/cases.csv
+    OMP_NUM_THREADS=1 python -m benchmarks session --csv session_rows.csv
     OMP_NUM_THREADS=1 python -m benchmarks session --timing --trials 10 --frames 400
 """
 from __future__ import annotations

@@ -74,3 +74,24 @@ def test_a_peer_keeps_observed_samples_and_fills_some_hidden_ones(peer, data_dir
     seen = ~case.mask
     assert np.array_equal(F[seen], X.points[seen])
     assert np.isfinite(F[case.mask]).all(axis=1).any()
+
+
+def test_help_lists_every_suite(capsys):
+    from benchmarks.__main__ import main
+    from benchmarks.suites import SUITES
+
+    with pytest.raises(SystemExit) as done:
+        main(["--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    for name in ("real-gaps", "masks", "ik", "segments", "qc", "session", "speed", "peers",
+                 "papers", "docs"):
+        assert name in SUITES and f"    {name}" in text
+
+
+def test_real_gaps_list_prints_the_held_out_cases(data_dir, capsys):
+    from benchmarks.__main__ import main
+
+    assert main(["real-gaps", "--split", "held-out", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 10 and all(line.endswith("[held-out]") for line in lines)
