@@ -92,11 +92,11 @@ def _frames(ts, keep):
 
 
 def ktk_interp(seq: torchfill.MarkerSequence) -> np.ndarray:
-    """Kinetics Toolkit ``fill_missing_samples(0, method="pchip")``: every gap interpolated in
-    time (its interp1d leaves the samples before the first and after the last observation)."""
+    """Kinetics Toolkit ``fill_missing_samples(0)`` (its default, linear): every gap interpolated
+    in time, and extrapolated before the first and after the last observation."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ts = _ktk_series(seq).fill_missing_samples(0, method="pchip")
+        ts = _ktk_series(seq).fill_missing_samples(0)
     return np.stack([ts.data[f"m{j}"][:, :3] for j in range(seq.n_markers)], axis=1)
 
 
@@ -183,7 +183,7 @@ PEERS = {
     "gapfill": ("gapfill 0.0.7 recover_marker_rbt, named segments", "gapfill", gapfill),
     "ktk_cluster": ("Kinetics Toolkit track_cluster, named segments", "kineticstoolkit",
                     ktk_cluster),
-    "ktk_interp": ("Kinetics Toolkit fill_missing_samples (pchip)", "kineticstoolkit", ktk_interp),
+    "ktk_interp": ("Kinetics Toolkit fill_missing_samples (linear)", "kineticstoolkit", ktk_interp),
     "iterative_imputer": ("scikit-learn IterativeImputer", "sklearn", iterative_imputer),
     "pose2sim": ("Pose2Sim interpolate_zeros_nans (cubic, gaps <= 10 frames)", "Pose2Sim.common",
                  pose2sim),

@@ -171,7 +171,8 @@ def benchmark_table(rows: list[dict], ik: list[dict]) -> str:
         body.append([what, mean("rmse"), mean("rmse", [r for r in mine if r["split"] == "held-out"]),
                      mean("rmse_end"), mean("rmse_interior"), f"{100 * mean('left'):.1f}",
                      mean("rmse_own"), _pct(acc), num(k.get("rmse_all")), num(k.get("rmse_gap")),
-                     k.get("worse_than_gaps", "") or "—",
+                     f"{k['worse_than_gaps']} of {k['masks']}" if k.get("worse_than_gaps")
+                     not in (None, "") else "—",
                      np.nanmedian([num(r.get("cpu")) for r in mine])])
     return markdown(["method", "RMSE mm", "held out", "trial-end", "interior", "left %",
                      "RMSE own", "verdicts right", "IK deg", "IK gap frames",
