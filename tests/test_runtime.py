@@ -156,14 +156,16 @@ def test_memo_keeps_at_most_its_byte_budget():
 
 def test_a_windowed_fill_leaves_no_kept_results_behind(recording):
     """A long recording's windows are other data each: what one window kept for a repeat
-    (``runtime.cache`` memos, rigid's reconstructions) is dropped when it is done, so no window's
-    results stay in memory beside the next one's."""
+    (``runtime.cache`` memos: rigid's reconstructions, pca's training eigenspaces among them) is
+    dropped when it is done, so no window's results stay in memory beside the next one's."""
     from torchfill.runtime import cache
-    from torchfill.solvers import rigid
+    from torchfill.solvers import pca, rigid
+
+    assert {rigid._KEPT, pca._KEPT} <= set(cache._ALL)
     X = torchfill.read(recording("HDM_bd_01-02_01_120.c3d")).points[:1200].copy()
     X[200:300, 3] = np.nan
     X[700:780, 9] = np.nan
     torchfill.fill(X, "pca_gloersen", window=None)     # one window: results kept
-    assert any(m._kept for m in cache._ALL) and rigid._CACHE
+    assert any(m._kept for m in cache._ALL) and rigid._KEPT._kept
     torchfill.fill(X, "pca_gloersen", window=600, constraints=False)   # windows: dropped
-    assert not any(m._kept for m in cache._ALL) and not rigid._CACHE
+    assert not any(m._kept for m in cache._ALL)     # rigid's and pca's memos among them

@@ -110,7 +110,7 @@ def test_a_marker_never_seen_is_placed_from_the_training(cmu85):
 
 def test_training_units_rate_and_labels(cmu85):
     X, truth, mask, train = cmu85
-    from torchfill.filling import _align_training
+    from torchfill.training import align_training as _align_training
 
     keep = list(range(X.n_markers))
     mm = _align_training([train], X, keep, X.n_markers)[0].numpy()
@@ -204,7 +204,7 @@ def test_cross_trial_holdout_reads_observed_samples_only(group_end):
     the recording's own hold-out scores differ by 1e-13 too)."""
     import torch
 
-    from torchfill.filling import _align_training
+    from torchfill.training import align_training as _align_training
     from torchfill.solvers import get_solver
 
     X, truth, mask, train = group_end

@@ -12,20 +12,22 @@ NumPy) starts without torch. Lightning is imported only by the experiment runner
 from importlib import import_module
 
 __version__ = "0.1.0"
-__all__ = ["FileFormatError", "MarkerSequence", "NotConvergedWarning", "Solver", "UnfilledWarning",
-           "default_method", "fill", "get_solver", "methods", "read", "score", "write"]
+__all__ = ["FileFormatError", "FillOptions", "MarkerSequence", "NotConvergedWarning", "Solver",
+           "UnfilledWarning", "default_method", "fill", "get_solver", "methods", "read", "score",
+           "write"]
 
 #: Where each public name lives. They are imported on first use (PEP 562), so ``import
 #: torchfill.cli`` stays light and a Ctrl-C during the heavy imports (torch) reaches the CLI's
 #: handler instead of printing a traceback.
-_HOMES = {"fill": ".filling", "methods": ".filling", "default_method": ".filling",
-          "UnfilledWarning": ".filling", "read": ".io", "write": ".io", "FileFormatError": ".io",
+_HOMES = {"fill": ".filling", "methods": ".filling", "default_method": ".options",
+          "FillOptions": ".options", "UnfilledWarning": ".unfilled", "read": ".io", "write": ".io", "FileFormatError": ".io",
           "score": ".metrics", "MarkerSequence": ".sequence",
           "NotConvergedWarning": ".solvers", "Solver": ".solvers", "get_solver": ".solvers"}
 
 
-_SUBMODULES = {"cli", "data", "filling", "gaps", "io", "lightning", "metrics", "ops", "sequence",
-               "solvers", "constraints", "qc", "rigid", "windows", "batch"}
+_SUBMODULES = {"cli", "data", "filling", "gaps", "io", "lightning", "metrics", "ops", "options",
+               "runtime", "segments", "sequence", "solvers", "constraints", "qc", "windows",
+               "batch"}
 
 
 def __getattr__(name: str):

@@ -9,29 +9,26 @@ yielding each row as its file finishes.
 from __future__ import annotations
 
 import glob
-import multiprocessing
 import os
 import time
 import warnings
 from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .options import FillOptions
+
 SUFFIXES = (".c3d", ".trc", ".npy", ".npz", ".csv")
-_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
 @dataclass(frozen=True)
 class Job:
-    """One file to fill: where from, where to, and how (``params``: ``fill()`` keywords; ``report``
+    """One file to fill: where from, where to, and how (``options``: the fill's options; ``report``
     and ``std``: the side outputs of this file, as ``torchfill fill --report/--std`` writes them)."""
 
     input: str
     output: str
-    method: str | None = None
-    params: dict = field(default_factory=dict)
-    max_gap: int | None = None
+    options: FillOptions = field(default_factory=FillOptions)
     training: tuple[str, ...] = ()
     report: str | None = None
     std: str | None = None
@@ -118,7 +115,7 @@ def drop_rejected(seq, filled, method: str | None = None):
     import numpy as np
 
     from . import qc
-    from .filling import UnfilledWarning
+    from .unfilled import UnfilledWarning
 
     rows = qc_rows(seq, filled, filled.meta.get("std"), method)
     F, S, dropped = qc.drop_rejected(filled.points, rows, filled.meta.get("std"))
@@ -177,16 +174,16 @@ def fill_file(job: Job) -> dict:
             plan.keep_templates()
             seq = torchfill.read(job.input, **job.read_options)
             row.update(frames=seq.n_frames, markers=seq.n_markers, missing=int(seq.mask.sum()))
-            params = dict(job.params)
+            options = job.options
             if job.training or job.session:
-                params["training"] = [*job.session, *(torchfill.read(p) for p in job.training)]
+                options = options.replace(training=[*job.session,
+                                                    *(torchfill.read(p) for p in job.training)])
             plan.confirm_inputs()
             want_std = bool(job.std or job.report or job.rejected == "drop")   # qc uses it
-            out = torchfill.fill(seq, job.method, max_gap=job.max_gap,
-                                 return_std=want_std, **params)
+            out = torchfill.fill(seq, options=options.replace(return_std=want_std))
             out = out[0] if want_std else out
             if job.rejected == "drop":
-                out, _ = drop_rejected(seq, out, job.method or torchfill.default_method())
+                out, _ = drop_rejected(seq, out, job.options.method or torchfill.default_method())
             plan.write_sequence(out, job.output)
             row["outputs"].append(job.output)
             if job.std:
@@ -194,7 +191,7 @@ def fill_file(job: Job) -> dict:
                 row["outputs"].append(job.std)
             if job.report:
                 write_report(seq, out, job.report, job.input, plan=plan,
-                             method=job.method or torchfill.default_method())
+                             method=job.options.method or torchfill.default_method())
                 row["outputs"].append(job.report)
         row["filled"] = row["missing"] - int(out.mask.sum())
         row["warnings"] = _texts(caught)
@@ -265,234 +262,34 @@ def _texts(caught) -> list[str]:
 
 
 def run(jobs: list[Job], workers: int = 1, ray_address: str | None = None) -> Iterator[dict]:
-    """Fill every job; yields the rows as files finish (in any order).
+    """Fill every job; yields the rows as files finish (in any order), through the runtime's
+    process pool (:func:`torchfill.runtime.pool.imap`: ``workers`` processes of one thread each,
+    or Ray tasks with ``ray_address``). A worker that dies costs only its file: the file is tried
+    once more in a new worker, then reported failed, and the batch goes on. Closing the generator
+    (or Ctrl-C) stops at once, and no worker is left."""
+    from .io.outputs import sweep
+    from .runtime.pool import imap
 
-    With ``workers > 1`` the files go to that many worker processes (fresh interpreters, one
-    thread each). A worker that dies (SIGKILL, as the out-of-memory killer sends) costs only its
-    file: the file is tried once more in a new worker, then reported failed, and the batch goes on.
-    Closing the generator (or an exception in it: Ctrl-C) stops at once: queued files are not
-    started, running ones get SIGTERM (their writes finish or roll back), and no worker is left.
-    """
-    if ray_address is not None:
-        yield from _run_ray(jobs, ray_address)
-    elif workers <= 1 or len(jobs) <= 1:
-        yield from map(fill_file, jobs)
-    else:
-        yield from _run_processes(jobs, min(workers, len(jobs)))
-
-
-#: seconds a stopped worker gets to finish a write before it is killed
-STOP_GRACE = 1.5
-
-
-def _run_processes(jobs: list[Job], n: int) -> Iterator[dict]:
-    from collections import deque
-    from multiprocessing.connection import wait
-
-    ctx = multiprocessing.get_context("spawn")
-    queue = deque((job, 1) for job in jobs)
-    idle: list[tuple] = []
-    busy: dict[int, tuple] = {}                     # pid -> (process, conn, job, attempt)
-    started: list[tuple] = []                       # every worker, whatever its state
-
-    def start():
-        parent, child = ctx.Pipe()
-        with _one_thread(), _no_sigint():           # a terminal's ^C is for this process only
-            proc = ctx.Process(target=_worker, args=(child,), daemon=True)
-            proc.start()
-        child.close()
-        started.append((proc, parent))
-        return proc, parent
-
-    def died(proc, job, attempt):
-        proc.join()
-        how = _death(proc.exitcode)
-        for path in (job.output, job.report, job.std):
+    def cleanup(i: int) -> None:
+        for path in (jobs[i].output, jobs[i].report, jobs[i].std):
             if path:
                 sweep(path)
-        if attempt < 2:
-            queue.appendleft((job, attempt + 1))
-            return None
+
+    def died(i: int, how: str) -> dict:
+        job = jobs[i]
         return {"file": job.input, "output": job.output, "frames": 0, "markers": 0,
                 "missing": 0, "filled": 0, "seconds": 0.0, "warnings": [], "outputs": [],
                 "error": f"{job.input}: the worker process died ({how}) on both tries; not filled"}
 
-    from .io.outputs import sweep
-    first_death: dict[str, str] = {}
-    try:
-        idle.extend(start() for _ in range(n))
-        while queue or busy:
-            while queue and idle:
-                proc, conn = idle.pop()
-                job, attempt = queue.popleft()
-                try:
-                    conn.send(job)
-                except OSError:                     # died while idle: replace it
-                    proc.join()
-                    queue.appendleft((job, attempt))
-                    idle.append(start())
-                    continue
-                busy[proc.pid] = (proc, conn, job, attempt)
-            handles = [h for proc, conn, *_ in busy.values() for h in (conn, proc.sentinel)]
-            ready = set(wait(handles))
-            for pid in list(busy):
-                proc, conn, job, attempt = busy[pid]
-                if conn not in ready and proc.sentinel not in ready:
-                    continue
-                del busy[pid]
-                try:
-                    row = conn.recv() if conn in ready else None
-                except (EOFError, OSError):
-                    row = None
-                if row is not None:
-                    idle.append((proc, conn))
-                    if job.input in first_death and not row["error"]:
-                        row["warnings"].append(f"the first worker process died "
-                                               f"({first_death[job.input]}); filled on the "
-                                               "second try")
-                    yield row
-                    continue
-                if proc.is_alive():                 # its pipe broke: make sure it is gone
-                    proc.kill()
-                proc.join()
-                conn.close()
-                first_death.setdefault(job.input, _death(proc.exitcode))
-                row = died(proc, job, attempt)
-                if queue and len(idle) + len(busy) < n:
-                    idle.append(start())
-                if row is not None:
-                    yield row
-    finally:               # a worker handed a job a moment ago may be in neither list: all go
-        _stop([w for w in started if w not in idle], idle)
-        for proc, conn, job, attempt in busy.values():
-            for path in (job.output, job.report, job.std):
-                if path:
-                    sweep(path)
+    def retried(i: int, row: dict, how: str) -> dict:
+        if not row["error"]:
+            row["warnings"].append(f"the first worker process died ({how}); filled on the "
+                                   "second try")
+        return row
 
-
-def _stop(running: list[tuple], idle: list[tuple]) -> None:
-    """End every worker: idle ones are told to leave, running ones get SIGTERM (a write in
-    progress finishes or rolls back), whatever is left after ``STOP_GRACE`` seconds is killed."""
-    for proc, conn in idle:
-        try:
-            conn.send(None)
-        except OSError:
-            pass
-    for proc, conn in running:
-        if proc.exitcode is None:
-            proc.terminate()
-    deadline = time.monotonic() + STOP_GRACE
-    everyone = running + idle
-    for proc, conn in everyone:
-        if proc.exitcode is None:
-            proc.join(max(0.0, deadline - time.monotonic()))
-    for proc, conn in everyone:
-        if proc.exitcode is None:
-            proc.kill()
-            proc.join()
-        try:
-            conn.close()
-        except OSError:
-            pass
-
-
-def _death(code) -> str:
-    if code is None:
-        return "no reply"
-    if code < 0:
-        try:
-            import signal
-            name = signal.Signals(-code).name
-        except ValueError:
-            name = f"signal {-code}"
-        return f"killed by {name}" + (", out of memory?" if name == "SIGKILL" else "")
-    return f"exit status {code}"
-
-
-def _worker(conn) -> None:
-    """A worker process: fill the jobs it is sent until told to stop (None or SIGTERM)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    def on_term(signum, frame):
-        raise SystemExit(128 + signum)               # unwinds: temporary files are removed
-    signal.signal(signal.SIGTERM, on_term)
-    try:
-        while True:
-            try:
-                job = conn.recv()
-            except (EOFError, OSError):
-                return
-            if job is None:
-                return
-            row = fill_file(job)
-            try:
-                conn.send(row)
-            except OSError:
-                return
-    except SystemExit as stop:        # unwound (temporary files removed): skip the slow teardown
-        os._exit(stop.code if isinstance(stop.code, int) else 1)
-
-
-@contextmanager
-def _no_sigint():
-    """Block SIGINT while a worker starts: the worker inherits the blocked signal (and then ignores
-    it), so it never sees a terminal's ^C; a ^C that arrives meanwhile waits and reaches this
-    process once the worker has started (ignoring it here instead lost it: a batch ran on)."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
-@contextmanager
-def _one_thread():
-    """Set the BLAS/OpenMP thread variables to 1 for processes started inside, then restore."""
-    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
-    os.environ.update({k: "1" for k in _THREAD_VARS})
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _run_ray(jobs: list[Job], address: str) -> Iterator[dict]:
-    yield from ray_map(fill_file, [(job,) for job in jobs], address)
-
-
-def ray_map(func, args: list[tuple], address: str, kwargs: list[dict] | None = None) -> Iterator:
-    """``func(*a, **k)`` for every ``a`` (and ``k``) as Ray tasks of one CPU each; yields the
-    results as they finish. Connects to ``address`` unless Ray is already initialized in this
-    process: ``"local"`` always starts a new Ray here (``ray.init(address=None)`` would instead join
-    a cluster named by ``RAY_ADDRESS`` or left by ``ray start``), ``"auto"`` joins the running one."""
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("--ray needs Ray: pip install 'torchfill[ray]'") from None
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=address, log_to_driver=False)
-    remote = ray.remote(num_cpus=1)(func)
-    pending = [remote.remote(*a, **k) for a, k in zip(args, kwargs or [{}] * len(args))]
-    try:
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(done[0])
-    finally:
-        if started:
-            ray.shutdown()
+    for _, row in imap(fill_file, [(job,) for job in jobs], workers=workers,
+                       ray_address=ray_address, died=died, retried=retried, cleanup=cleanup):
+        yield row
 
 
 def table(rows: list[dict]) -> str:
@@ -520,5 +317,5 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "ray_map", "run", "session",
+__all__ = ["Job", "SUFFIXES", "expand", "fill_file", "outputs", "run", "session",
            "side_name", "std_csv", "table", "write_report"]

@@ -1,46 +1,37 @@
 """``fill()``: the one entry point that validates input, runs a registered solver and returns the
-same kind of object it was given, observed samples bit-for-bit unchanged."""
+same kind of object it was given, observed samples bit-for-bit unchanged. It knows the solver
+contract only (the registry, declared hyperparameters and fit data); the options are
+:class:`torchfill.options.FillOptions`."""
 from __future__ import annotations
 
 import functools
+import inspect
 import threading
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 
 import numpy as np
 import torch
 
+from . import unfilled, windows
 from .constraints import constrain, constrain_candidates, meet_kept
-from .qc import EST_CHECK_MM, alone, per_mm, untested
-from .qc.finish import short_gap_fallback, std_bound
-from .metrics import gap_runs
+from .options import DEFAULT_METHODS, OPTIONS_DOC, FillOptions, default_method, work_dtype
 from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
-from . import windows
 from .sequence import MarkerSequence
-from .solvers import available, get_solver
-from .solvers.selection.candidates import PARTIAL
-from .solvers.rigid import HOLDOUT_LAGS, body_size, segment_fill
-from .solvers.rigid import clear_cache as clear_rigid_cache
-from .solvers.session import TRAINING_FRAMES, spread_runs
+from .solvers import available, get_solver, index_segments, place_from_training
+from .training import align_training
+from .unfilled import UnfilledWarning
 
 _LOCK = threading.Lock()
 
 #: Gaps longer than this (seconds) filled without rigid donors are named in a warning.
 LONG_GAP_SECONDS = 10.0
 
-#: Preferred default, best first; the first registered one is used when ``method`` is not given.
-#: ``auto``: per gap, the candidate methods that fill gaps of that kind best on the recording's
-#: own observed data (spatial models at trial ends and for groups of missing markers, rigid
-#: segments where three segment-mates are seen, low-rank and interpolation inside), with its error
-#: estimate (see torchfill/solvers/auto.py; numbers in docs/real-gaps.md).
-DEFAULT_METHODS = ("auto", "tucker_tnn", "tucker", "pchip")
-
-
-class UnfilledWarning(UserWarning):
-    """Some gaps were left unfilled (a marker never observed, or a gap longer than ``max_gap``)."""
+__all__ = ["DEFAULT_METHODS", "FillOptions", "UnfilledWarning", "default_method", "fill",
+           "fill_case", "holdout_std", "methods"]
 
 
 def methods() -> list[str]:
@@ -48,22 +39,7 @@ def methods() -> list[str]:
     return available()
 
 
-def default_method() -> str:
-    return next(m for m in DEFAULT_METHODS if m in available())
-
-
-class _Default(int):
-    """The default of an ``int`` argument, told apart from the same number given explicitly."""
-
-
-_WINDOW = _Default(windows.WINDOW)
-
-
-def fill(data, method: str | None = None, *, params: dict | None = None, training=None,
-         mask=None, max_gap: int | None = None, window: int | None = _WINDOW,
-         progress: bool | Callable[[dict], None] | None = False, constraints: bool = True,
-         extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
-         workers: int | None = None, segments=None, reject: float | None = None, **legacy):
+def fill(data, method: str | None = None, *, options: FillOptions | None = None, **keywords):
     """Fill the gaps of a recording.
 
     Parameters
@@ -76,87 +52,9 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
         their own dtype.
     method : str, optional
         A name from :func:`methods` (default: the best registered, see ``DEFAULT_METHODS``).
-    params : dict, optional
-        Hyperparameters of the method (see ``torchfill methods``), e.g. ``{"max_iter": 200}``.
-        They never mix with ``fill()``'s own arguments: ``fill(X, "pma", window=15)`` is an
-        error (pma has a ``window`` of its own), ``params={"window": 15}`` sets pma's.
-        Passing them as keyword arguments of ``fill()`` still works for one release, with a
-        DeprecationWarning.
-    training : MarkerSequence, ndarray or a list of them, optional
-        Other recordings of the same marker set -- the subject's other trials -- for the methods
-        that take them: the spatial models (``pma``, ``li``, ``lpr``, ``lgrnn``, ``glr``,
-        ``pca_gloersen``) learn from their observed frames too (see
-        :mod:`torchfill.solvers.session`), ``auto`` adds those as candidates ``NAME+session``
-        that its hold-out weighs against the recording's own, ``pca_train``/``pca_blackout``
-        take them as their training set; a marker never observed in ``data`` is placed from its
-        segment-mates with the local coordinates the training shows, where that rigid fill's
-        own error estimate is small. MarkerSequences are matched to ``data`` by marker label
-        (``Subject:`` prefixes ignored; markers one lacks are NaN there, with a warning; none in
-        common is an error), put in ``data``'s units and resampled to its rate (nearest frame);
-        arrays must already have ``data``'s markers in order. They are never changed.
-    mask : array (T, J) of bool, optional
-        Extra samples to treat as missing (True = missing), on top of the NaNs.
-    max_gap : int, optional
-        Gaps longer than this many frames are left unfilled (NaN).
-    window : int or None
-        Recordings longer than this many frames are filled in overlapping windows, blended with a
-        cross-fade (see :mod:`torchfill.windows`: the window grows to 6x the longest gap, the
-        overlap is 2x the longest gap), so time grows linearly with the length and memory is
-        bounded. ``None`` fills the whole recording at once.
-    progress : bool or callable
-        ``True``: a bar with percent and time left over the whole fill on a terminal (after
-        2 s), one summary line on stderr otherwise; ``False`` (default): nothing; a callable
-        receives every record: the solver's iteration diagnostics (a dict from its ``history_``,
-        or ``auto``'s ``fit``/``fits`` as candidates finish) with ``window``, ``windows`` and
-        ``max_iter`` (see :mod:`torchfill.progress`).
-    constraints : bool
-        Make the fill obey the body (default): rigid donors, continuity at gap edges, no steps
-        beyond the observed motion, samples inside the observed volume, no invented blackout
-        frames (see :mod:`torchfill.constraints`). ``False`` returns the method's own fill, as in
-        its paper.
-    extrapolate : float or None
-        Seconds a gap touching a trial end may be extrapolated in time (default 0.25 s); the rest
-        is left NaN with a warning. Samples filled from rigid donors, and -- for a spatial method
-        such as the default (``Solver.spatial``) -- samples in frames with at least three markers
-        seen, are not extrapolations in time and are not cut. Needs the rate of a
-        MarkerSequence: arrays and tensors have no limit. With a limit, the samples of a marker
-        never seen in two consecutive frames are left NaN too, where the fill has an error
-        estimate (the default's): it has no observed motion to go on, and neither has the
-        estimate (see :func:`torchfill.qc.untested`; one warning names the markers), and so
-        are the samples of a marker whose segment-mates are never observed, where its estimated
-        error is above the QC's check level: the fill alone would pose the segment (see
-        :func:`torchfill.qc.alone`; one warning). None: no limit, every sample filled. Only
-        with ``constraints``.
-    return_std : bool
-        Also return ``std`` (T, J): the estimated standard deviation of each coordinate's error at
-        each filled sample, in the data's units, NaN where observed or left unfilled (``auto``
-        estimates it from its hold-outs; other methods get their held-out error on gaps of each
-        kind, one extra fit; see torchfill/solvers/auto.py). A MarkerSequence also carries it as
-        ``meta["std"]``.
-    dtype : torch.dtype or str, optional
-        The floating dtype the method computes in (``"float32"`` / ``"float64"``; default: the
-        method's ``fill_dtype``, float32 for ``tucker`` and ``tucker_tnn`` -- about twice as fast
-        -- else float64). Only the filled samples come from that computation: the observed ones
-        and the output's dtype are the input's.
-    workers : int, optional
-        Windows solved at once, in threads that share torch's intra-op threads out (default and
-        most: that thread count, ``torch.get_num_threads()``; on CPU only; see
-        :func:`torchfill.runtime.threads.thread_map`). The first window runs alone and the fills blend in
-        window order, so a fill does not depend on which window finishes first; it does depend on
-        the threads per window, which change how float32 sums round (accuracy the same).
-    reject : float, optional
-        Leave NaN the filled samples whose estimated 3-D error is above this many mm (at a trial
-        end from the first such sample on; inside a trial the whole gap when its RMS estimate is
-        above it), with one warning; needs the error estimate (``auto``'s own) and a
-        MarkerSequence in mm, cm or m. Default None: keep every fill and let ``torchfill qc``
-        flag it -- on the OpenSim IK benchmark (docs/ik.md) leaving such samples out made the
-        joint angles worse (mean 4.63 deg at 30 mm, 3.22 at 60 mm, 2.93 keeping them).
-    segments : optional
-        Which markers move together (see :mod:`torchfill.segments`): a dict segment name ->
-        marker labels, a path to a segments YAML file (``torchfill info --segments`` prints one),
-        ``"names"`` (the built-in marker-set tables), ``"data"`` (near-rigid clusters found in the
-        recording) or None (the tables when the labels fit them, else found from the data). Used
-        by the ``rigid`` method, ``auto``'s rigid candidate and the constraints' rigid donors.
+    {options}
+    options : FillOptions, optional
+        All of the above in one object (the keywords given as well override its fields).
     **legacy
         Deprecated: hyperparameters of the method as keyword arguments (use ``params``).
 
@@ -169,55 +67,48 @@ def fill(data, method: str | None = None, *, params: dict | None = None, trainin
     With ``return_std=True``, the pair ``(filled, std)``, ``std`` of the same kind (ndarray for a
     MarkerSequence).
     """
-    prior = _previous_fill(data, mask)
+    if options is not None:
+        keywords = {**options.keywords(), **keywords}
+        method = options.method if method is None else method
+    opts = FillOptions.make(method, **keywords)
+    prior = _previous_fill(data, opts.mask)
     if prior is not None:
-        return _refill(data, prior, method, mask=mask, max_gap=max_gap, window=window,
-                       progress=progress, constraints=constraints, extrapolate=extrapolate,
-                       return_std=return_std, dtype=dtype, workers=workers, segments=segments,
-                       reject=reject, params=params, training=training, **legacy)
-    method = default_method() if method is None else method
-    if not isinstance(method, str) or not method.strip():
-        raise ValueError(f"method expected one of {', '.join(available())}, found {method!r}")
-    params, training = _solver_params(method, params, training, legacy, window is not _WINDOW)
-    again = functools.partial(fill, method=method, params=params, training=training,
-                              max_gap=max_gap, window=window, progress=progress,
-                              constraints=constraints, extrapolate=extrapolate,
-                              return_std=return_std, dtype=dtype, workers=workers,
-                              segments=segments, reject=reject)
+        return _refill(data, prior, opts)
     if not isinstance(data, MarkerSequence) and np.ndim(data) == 4:
-        return _fill_batch(data, mask, again)
+        return _fill_batch(data, opts)
     if isinstance(data, torch.Tensor) and data.dtype in (torch.float16, torch.bfloat16):
         # computed in float32; every float16/bfloat16 value is exact in float32 and back
-        done = again(data.float(), mask=mask)
-        return tuple(d.to(data.dtype) for d in done) if return_std else done.to(data.dtype)
-    if max_gap is not None and max_gap < 0:
-        raise ValueError(f"max_gap expected >= 0, found {max_gap}")
-    if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 2):
-        raise ValueError(f"window expected an int >= 2 or None, found {window!r}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise ValueError(f"workers expected an int >= 1 or None, found {workers!r}")
-    if not (progress is None or isinstance(progress, bool) or callable(progress)):
-        raise ValueError(f"progress expected True, False or a callable, found {progress!r}")
-    return fill_case(data, method, params, training=training, mask=mask, max_gap=max_gap,
-                     window=window, progress=progress, constraints=constraints,
-                     extrapolate=extrapolate, return_std=return_std, dtype=dtype, workers=workers,
-                     segments=segments, reject=reject)
+        done = fill(data.float(), options=opts)
+        return tuple(d.to(data.dtype) for d in done) if opts.return_std else done.to(data.dtype)
+    return fill_case(data, opts)
 
 
-def fill_case(data, method: str, params: dict, *, training=None, mask=None,
-              max_gap: int | None = None, window: int | None = windows.WINDOW,
-              progress: bool | Callable[[dict], None] | None = False, constraints: bool = True,
-              extrapolate: float | None = 0.25, return_std: bool = False, dtype=None,
-              workers: int | None = None, segments=None, reject: float | None = None,
-              solve: Callable | None = None):
-    """Fill one recording ``(T, J, D)``: prepare -> solve -> finish.
+def _signature() -> inspect.Signature:
+    """``fill()``'s signature as ``help()`` shows it: every option of :class:`FillOptions`."""
+    P = inspect.Parameter
+    opts = [P(f.name, P.KEYWORD_ONLY, default=f.default if f.default is not MISSING else
+              f.default_factory(), annotation=f.type)
+            for f in fields(FillOptions) if f.name != "method"]
+    return inspect.Signature([P("data", P.POSITIONAL_OR_KEYWORD),
+                              P("method", P.POSITIONAL_OR_KEYWORD, default=None,
+                                annotation="str | None"),
+                              *opts, P("options", P.KEYWORD_ONLY, default=None,
+                                       annotation="FillOptions | None"),
+                              P("legacy", P.VAR_KEYWORD)])
+
+
+fill.__signature__ = _signature()
+fill.__doc__ = fill.__doc__.replace("    {options}\n", OPTIONS_DOC)
+
+
+def fill_case(data, options: FillOptions, solve: Callable | None = None):
+    """Fill one recording ``(T, J, D)`` with checked ``options``: prepare -> solve -> finish.
 
     The one path of a fill: :func:`fill` calls it once it has checked its arguments (and split a
     batch, widened half precision, set earlier fills aside), and the experiment runner
     (:mod:`torchfill.lightning.runner`) calls it for every case, so that an experiment scores what
-    ``fill()`` returns; the papers' protocols are arguments (``constraints=False``,
-    ``extrapolate=None``, ``window=None``, ``dtype``). Arguments and result as :func:`fill`'s;
-    ``params``: the method's hyperparameters (a dict; not changed); and
+    ``fill()`` returns; the papers' protocols are options (``constraints=False``,
+    ``extrapolate=None``, ``window=None``, ``dtype``). The result is :func:`fill`'s; and
 
     solve : callable, optional
         ``solve(solver, X, missing, data, callback, part)`` fits ``solver`` to one window ``X``
@@ -226,13 +117,12 @@ def fill_case(data, method: str, params: dict, *, training=None, mask=None,
         marker indices in ``data``) as ``solver.fit`` does -- the default; the runner drives the
         same solver under a Lightning Trainer, one ``step()`` per training step.
     """
-    case = _prepare(data, method, dict(params), training, mask, dtype, segments, constraints,
-                    max_gap is not None)
+    case = _prepare(data, options)
     if bool(case.todo.any()):
-        _solve(case, window, workers, progress, constraints, return_std, solve or _fit)
+        _solve(case, options, solve or _fit)
     if case.training is not None and bool(case.never.any()):
         _place_from_training(case)
-    return _finish(case, constraints, extrapolate, reject, max_gap, return_std)
+    return _finish(case, options)
 
 
 @dataclass
@@ -242,7 +132,7 @@ class _Case:
     data: object                     # what the caller gave (labels, rate, units, kind)
     kind: str                        # "sequence", "array" or "tensor"
     method: str
-    params: dict                     # the method's hyperparameters (with segments, carry)
+    params: dict                     # the method's hyperparameters (with what windows carry)
     solver: object                   # a solver of ``method`` (validated; its class attributes)
     work: torch.dtype | None         # the dtype the method computes in (None: the data's)
     points: torch.Tensor | None      # the input (dropped once the windows are cut)
@@ -262,12 +152,12 @@ class _Case:
     placed: torch.Tensor | None = None       # never-observed markers placed from the training
 
 
-def _prepare(data, method, params, training, mask, dtype, segments, constraints,
-             keep_given: bool) -> _Case:
+def _prepare(data, o: FillOptions) -> _Case:
     """Validate the method and data, and find what is missing, what the solver may see and the
     segments."""
+    method, params, training, mask = o.method, dict(o.params), o.training, o.mask
     solver = get_solver(method, **params)                           # validate early
-    work = _work_dtype(dtype, solver)
+    work = work_dtype(o.dtype, solver)
     if training is not None and "training" not in solver.fit_data:
         raise ValueError(f"{method}: takes no training data; methods that do: "
                          f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
@@ -284,22 +174,21 @@ def _prepare(data, method, params, training, mask, dtype, segments, constraints,
     unfit = missing | _huge(points, missing)     # what the solver does not see
     never = unfit.all(dim=0)
     if bool(never.any()) and training is None:
-        _warn_never(data, never)
+        unfilled.warn_never(data, never)
     todo = missing & ~never
     info = {"method": method, "n_iter": 0, "seconds": 0.0, "windows": 0,
             "dtype": str(work or points.dtype).removeprefix("torch.")}
     seg_idx = None
     if (bool(todo.any()) or training is not None) and points.shape[2] == 3 and (
-            constraints or segments is not None or "segments" in solver.declared_params()):
-        seg_idx = _segment_indices(segments, data, points, unfit)
+            o.constraints or o.segments is not None or "segments" in solver.fit_data):
+        seg_idx = _segment_indices(o.segments, data, points, unfit)
     return _Case(data, kind, method, params, solver, work, points, out,
-                 out.clone() if keep_given else None, torch.isfinite(out), missing, unfit, never,
+                 out.clone() if o.max_gap is not None else None, torch.isfinite(out), missing, unfit, never,
                  todo, training, seg_idx, info,
                  torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device))
 
 
-def _solve(case: _Case, window, workers, progress, constraints: bool, return_std: bool,
-           solve: Callable) -> None:
+def _solve(case: _Case, o: FillOptions, solve: Callable) -> None:
     """Solve the markers observed somewhere, window by window, and write their fill (and error
     estimate) into ``case``."""
     params, unfit, method = case.params, case.unfit, case.method
@@ -308,37 +197,31 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
     if case.seg_idx is not None:
         at = {int(j): i for i, j in enumerate(keep.tolist())}
         kept_segments = {s: [at[j] for j in m if j in at] for s, m in case.seg_idx.items()}
-    declared = case.solver.declared_params()
-    if kept_segments is not None and "segments" in declared:
-        params["segments"] = kept_segments
-    if kept_segments is not None and "candidate_params" in declared:
-        given = dict(params.get("candidate_params") or {})      # auto's rigid candidate
-        given["rigid"] = {"segments": kept_segments, **given.get("rigid", {})}
-        params["candidate_params"] = given
-    extra = {}
-    if constraints and "post" in case.solver.fit_data:     # auto scores fills as they come out
+    takes, extra = case.solver.fit_data, {}              # the solver's declared fit data
+    if kept_segments is not None and "segments" in takes:
+        extra["segments"] = kept_segments
+    if o.constraints and "post" in takes:                 # auto scores fills as they come out
         extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
     if case.training is not None:
-        extra["training"] = [t.to(case.work or t.dtype) for t in _align_training(
+        extra["training"] = [t.to(case.work or t.dtype) for t in align_training(
             case.training, case.data, keep.tolist(), case.points.shape[1])]
     case.points = None              # long recordings: hold as few full-length copies as we can
     out, todo = case.out, case.todo     # out: the input, NaN at ``mask`` (within ``unfit``):
     whole = len(keep) == out.shape[1]   # the windows read their input from it, and their
                                         # blended fill is written into it as it comes
-    plan = windows.plan(unfit[:, keep].cpu().numpy(), window)
+    plan = windows.plan(unfit[:, keep].cpu().numpy(), o.window)
     start = time.perf_counter()
     stds, anchors = {}, {}
     index = {w: k for k, w in enumerate(plan.windows)}
-    case.shown = shown = _progress(progress, windows=len(index), method=method)
+    case.shown = shown = _progress(o.progress, windows=len(index), method=method)
 
     def one(a: int, b: int) -> torch.Tensor:
         X = torch.where(unfit[a:b, keep, None], torch.nan, out[a:b, keep])
         part = _fill_window(method, params, extra, X.to(case.work or X.dtype), unfit[a:b, keep],
-                            shown, case.info, stds, (a, b), constraints, return_std,
+                            shown, case.info, stds, (a, b), o.constraints, o.return_std,
                             index[a, b] + 1, len(index), solve, keep, anchors)
         if len(index) > 1:              # the next window is other data: what this one kept
             clear_kept()                # for a repeat, and its freed temporaries, go back
-            clear_rigid_cache()
             trim_heap()
         return part
 
@@ -353,7 +236,7 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
 
     try:
         windows.blend(plan, unfit[:, keep], one, emit=write,
-                      workers=1 if out.device.type != "cpu" else workers)
+                      workers=1 if out.device.type != "cpu" else o.workers)
     except BaseException:
         shown.close()                           # no half-drawn bar before the error line
         raise
@@ -368,11 +251,12 @@ def _solve(case: _Case, window, workers, progress, constraints: bool, return_std
         case.anchored[:, keep] = todo[:, keep] & (part[..., 0] > 0.5)
 
 
-def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return_std: bool):
+def _finish(case: _Case, o: FillOptions):
     """The post-step, the rejection and ``max_gap`` on the fill; the result as ``fill()`` gives
     it."""
     out, todo, data, info, std = case.out, case.todo, case.data, case.info, case.std
-    if constraints and bool(todo.any()):
+    extrapolate = o.extrapolate
+    if o.constraints and bool(todo.any()):
         case.shown.post_step()
         trim_heap(out.element_size() * out.numel())     # the fits' freed memory goes back
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
@@ -380,20 +264,22 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
                                               case.anchored)
         if extrapolate is not None:
             tested = std if case.placed is None else std.masked_fill(case.placed, float("nan"))
-            info["untested"] = _leave_untested(out, tested, case.missing, data)
+            info["untested"] = unfilled.leave_untested(out, tested, case.missing, data)
             if case.seg_idx:
-                info["alone"] = _leave_alone(out, std, case.missing, data, case.seg_idx)
-        if reject is not None and isinstance(data, MarkerSequence):
-            info["rejected"] = _reject(out, std, case.missing, data.units, reject)
+                info["alone"] = unfilled.leave_alone(out, std, case.missing, data,
+                                                      case.seg_idx)
+        if o.reject is not None and isinstance(data, MarkerSequence):
+            info["rejected"] = unfilled.reject(out, std, case.missing, data.units, o.reject)
         if case.method == "auto":
-            out, std = _short_gaps_and_bound(out, std, case, info)
+            out, std = unfilled.short_gaps_and_bound(out, std, case.missing, case.own, data,
+                                                     info)
     if bool(todo.any()):
         case.shown.close(f"{case.method} filled {int(todo.sum())} samples ({info['windows']} "
                          f"window(s), {info['n_iter']} iterations)")
-    if max_gap is not None:
-        out = _unfill_long_gaps(out, case.given, case.missing, max_gap)
+    if o.max_gap is not None:
+        out = unfilled.unfill_long_gaps(out, case.given, case.missing, o.max_gap)
     result = _as_kind(out, case.kind, data, info, case.missing)
-    if not return_std:
+    if not o.return_std:
         return result
     std = torch.where(torch.isfinite(out).all(dim=2) & case.missing, std, float("nan"))
     if case.kind == "tensor":
@@ -403,81 +289,34 @@ def _finish(case: _Case, constraints: bool, extrapolate, reject, max_gap, return
     return result, std.cpu().numpy()
 
 
-def _warn_never(data, never: torch.Tensor) -> None:
-    warnings.warn(f"{int(never.sum())} marker(s) never observed, left unfilled: "
-                  f"{_marker_names(data, never)}", UnfilledWarning, stacklevel=5)
-
-
 def _place_from_training(case: _Case) -> None:
-    """Markers never observed in the recording but seen in the training recordings (a marker
-    that fell off, or was not placed, in this trial): rebuilt in every frame with three or more
-    segment-mates observed, from the local coordinates the training frames show (the rigid
-    reconstruction of :func:`torchfill.solvers.rigid.segment_fill` on the recording's observed
-    frames stacked with the training's), where its own error estimate is as small as ``auto``
-    asks of its rigid candidate (``PARTIAL``); the estimate comes with the fill. The rest stays
-    NaN (cmu_85_02 under numediart_03_rolling's mask, cmu_85_12 as training: RMT5 placed at a
-    median 21 mm; RWRA, whose forearm segment bends at the wrist, at 108 mm with an estimate of
-    179 mm, left NaN)."""
+    """Markers never observed in the recording but seen in the training recordings: placed from
+    their segment-mates where the rigid fill's own error estimate is small
+    (:func:`torchfill.solvers.placement.place_from_training`), estimate included; the rest stays
+    NaN with a warning."""
     out, J = case.out, case.out.shape[1]
     if case.seg_idx and out.shape[2] == 3:
-        train = _align_training(case.training, case.data, list(range(J)), J)
-        train = [spread_runs(t, TRAINING_FRAMES // len(train)) for t in train]
-        P = torch.where(case.unfit[..., None], float("nan"), out).double().cpu()
-        apart = torch.full((HOLDOUT_LAGS[-1], *P.shape[1:]), float("nan"), dtype=P.dtype)
-        S = torch.cat([P, apart, *train]).numpy()   # another trial is far in time: its error too
-        est, std, _ = segment_fill(S, None, case.seg_idx)
-        T = out.shape[0]
-        limit = PARTIAL["rigid"]["max_error"] * body_size(S[:T], np.isfinite(S[:T]).all(axis=2))
-        put = np.sqrt(3.0) * np.nan_to_num(std[:T], nan=np.inf) <= limit   # as auto's rigid
-        put &= case.never.cpu().numpy()[None, :]
-        case.placed = torch.from_numpy(put).to(out.device)
-        out[case.placed] = torch.from_numpy(est[:T][put]).to(out)
-        case.std[case.placed] = torch.from_numpy(std[:T][put]).to(case.std)
+        train = align_training(case.training, case.data, list(range(J)), J)
+        P = torch.where(case.unfit[..., None], float("nan"), out)
+        case.placed, est, std = place_from_training(P, case.never, train, case.seg_idx)
+        out[case.placed] = est[case.placed].to(out)
+        case.std[case.placed] = std[case.placed].to(case.std)
         case.todo = case.todo | case.placed
         if case.shown is None:                          # nothing else was missing
             case.shown = _progress(False, windows=0, method=case.method)
     left = case.never & ~torch.isfinite(out).all(dim=2).any(dim=0)
     if bool(left.any()):
-        _warn_never(case.data, left)
+        unfilled.warn_never(case.data, left)
 
 
-def _solver_params(method: str, params: dict | None, training, legacy: dict,
-                   window_given: bool) -> tuple[dict, object]:
-    """The method's hyperparameters from ``params`` (and, deprecated, ``fill()``'s extra keyword
-    arguments), checked against ``fill()``'s own arguments; and the training data."""
-    if params is not None and not isinstance(params, dict):
-        raise ValueError(f"params expected a dict of hyperparameters, found {type(params).__name__}")
-    params = dict(params or {})
-    if legacy:
-        both = sorted(set(legacy) & set(params))
-        if both:
-            raise ValueError(f"{', '.join(both)} given both in params and as keyword arguments")
-        if set(legacy) - {"training"}:
-            warnings.warn(f"fill(): method hyperparameters as keyword arguments "
-                          f"({', '.join(sorted(set(legacy) - {'training'}))}) are deprecated and "
-                          f"will be removed in the next release; pass params={{...}}",
-                          DeprecationWarning, stacklevel=3)
-        params.update(legacy)
-    if "training" in params:
-        if training is not None:
-            raise ValueError("training given twice (as fill()'s training and in params)")
-        training = params.pop("training")
-    declared = get_solver(method).declared_params() if method in available() else {}
-    if window_given and "window" in declared and "window" not in params:
-        raise ValueError(f"window is both fill()'s (frames solved at once) and a hyperparameter "
-                         f"of {method} ({declared['window'].doc}); give {method}'s in params "
-                         f"(params={{'window': ...}}; CLI: -p window=...), and name it there too "
-                         f"to set only fill()'s")
-    return params, training
-
-
-def _fill_batch(data, mask, again):
+def _fill_batch(data, o: FillOptions):
     """A batch ``(B, T, J, D)``: one fill per sequence, stacked (std too, with ``return_std``)."""
-    tensor = isinstance(data, torch.Tensor)
+    tensor, mask = isinstance(data, torch.Tensor), o.mask
     if mask is not None and len(mask) != len(data):
         raise ValueError(f"a batch of {len(data)} sequences expected a mask (B, T, J) with B = "
                          f"{len(data)}, found {len(mask)} masks")
-    done = [again(data[b], mask=None if mask is None else mask[b]) for b in range(len(data))]
+    done = [fill(data[b], options=o.replace(mask=None if mask is None else mask[b]))
+            for b in range(len(data))]
     stack = torch.stack if tensor else np.stack
     if isinstance(done[0], tuple):
         return tuple(stack([d[k] for d in done]) for k in range(len(done[0])))
@@ -497,7 +336,7 @@ def _previous_fill(data, mask) -> np.ndarray | None:
     return prior if prior.any() else None
 
 
-def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool, **kwargs):
+def _refill(data: MarkerSequence, prior: np.ndarray, o: FillOptions):
     """Fill ``data`` as if its earlier fills (``prior``) were gaps, then put those samples back
     as they were: they are kept, but never fitted to nor extrapolated from, so that filling a
     filled recording again gives the same recording (the method sees the same observed samples
@@ -505,8 +344,8 @@ def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool
     bare = data.with_points(np.where(prior[..., None], np.nan, data.points))
     bare.meta.pop("filled", None)
     bare.meta.pop("std", None)
-    result = fill(bare, method, return_std=return_std, **kwargs)
-    out, std = result if return_std else (result, None)
+    result = fill(bare, options=o)
+    out, std = result if o.return_std else (result, None)
     out.points[prior] = data.points[prior]
     meet_kept(out.points, out.meta["filled"] & ~prior, prior)
     out.meta["filled"] = out.meta["filled"] | prior
@@ -517,17 +356,6 @@ def _refill(data: MarkerSequence, prior: np.ndarray, method, *, return_std: bool
         std[prior] = np.asarray(old)[prior]
     out.meta["std"] = std
     return out, std
-
-
-def _work_dtype(dtype, solver) -> torch.dtype | None:
-    """The dtype a method computes in: ``dtype`` (a torch dtype or its name), else the solver's
-    ``fill_dtype`` (None: the data's own)."""
-    if dtype is None:
-        return solver.fill_dtype
-    found = getattr(torch, dtype, None) if isinstance(dtype, str) else dtype
-    if found not in (torch.float32, torch.float64):
-        raise ValueError(f"dtype expected 'float32' or 'float64', found {dtype!r}")
-    return found
 
 
 #: An observed coordinate farther than this many spreads (median absolute deviation of all
@@ -556,8 +384,6 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
 
 def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) -> dict:
     """The segments in use as ``name -> marker indices`` (see :mod:`torchfill.segments`)."""
-    from .solvers.rigid import index_segments
-
     labels = list(data.labels) if isinstance(data, MarkerSequence) else None
     X = torch.where(unfit[..., None], torch.nan, points).cpu().numpy()
     return index_segments(segments, labels, X, ~unfit.cpu().numpy())
@@ -636,58 +462,6 @@ def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tenso
     return solver.std_
 
 
-def _align_training(training, data, keep: list[int], n_markers: int) -> list[torch.Tensor]:
-    """Training recordings as tensors whose markers match ``data``'s kept markers, in order: a
-    MarkerSequence by label (markers it lacks are NaN, with a warning), in ``data``'s units and
-    at its rate (nearest frame); an array as it is."""
-    data_shape = data.points.shape if isinstance(data, MarkerSequence) else (
-        data.shape if hasattr(data, "shape") else np.shape(data))
-    D = data_shape[2]                                                          # coordinates
-    if isinstance(training, (MarkerSequence, np.ndarray, torch.Tensor)):
-        training = [training]
-    labels = data.short_labels() if isinstance(data, MarkerSequence) else None
-    aligned = []
-    for item in training:
-        if isinstance(item, MarkerSequence):
-            if labels is None:
-                raise ValueError("training recordings given as MarkerSequence need labelled data: "
-                                 "pass a MarkerSequence to fill(), or arrays as training")
-            item = _matched(item, data, [labels[j] for j in keep])
-        else:
-            item = np.asarray(item.detach().cpu() if isinstance(item, torch.Tensor) else item,
-                              dtype=np.float64)
-            if item.ndim != 3 or item.shape[1:] != (n_markers, D):
-                raise ValueError(f"training array expected shape (T, {n_markers}, {D}) like the "
-                                 f"recording to fill, found {item.shape}")
-            item = item[:, keep]
-        aligned.append(torch.from_numpy(np.array(item, dtype=np.float64)))
-    return aligned
-
-
-def _matched(item: MarkerSequence, data: MarkerSequence, names: list[str]) -> np.ndarray:
-    """``item``'s points for the markers ``names`` (NaN for those it lacks, with a warning), in
-    ``data``'s units, resampled to ``data``'s rate on the nearest frame; a new array."""
-    own = {name: i for i, name in enumerate(item.short_labels())}
-    have = [j for j, name in enumerate(names) if name in own]
-    source = item.source.name if item.source else "training recording"
-    if not have:
-        raise ValueError(f"{source}: shares no marker label with the recording to fill")
-    if len(have) < len(names):
-        absent = [name for name in names if name not in own]
-        warnings.warn(f"{source}: lacks {len(absent)} marker(s) of the recording to fill, learned "
-                      f"from the recording alone: {', '.join(absent[:8])}"
-                      f"{' ...' if len(absent) > 8 else ''}", UserWarning, stacklevel=4)
-    points = np.full((item.n_frames, len(names), item.points.shape[2]), np.nan)
-    points[:, have] = item.points[:, [own[names[j]] for j in have]]
-    points *= per_mm(data.units) / per_mm(item.units)
-    if item.rate and data.rate and abs(item.rate - data.rate) > 1e-9 * data.rate:
-        T = max(1, int(round(item.n_frames * data.rate / item.rate)))
-        frames = np.minimum(np.round(np.arange(T) * item.rate / data.rate).astype(int),
-                            item.n_frames - 1)
-        points = points[frames]
-    return points
-
-
 def _as_tensor(data) -> tuple[torch.Tensor, str]:
     if isinstance(data, MarkerSequence):
         X, kind = torch.from_numpy(np.array(data.points, dtype=np.float64)), "sequence"
@@ -721,110 +495,3 @@ def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tens
     seq.meta["fill_info"] = info
     return seq
 
-
-def _short_gaps_and_bound(out: torch.Tensor, std: torch.Tensor, case: _Case, info: dict):
-    """The default's short interior gaps kept on the interpolation across them where its fill
-    departs from it, and its estimate bounded by what the fill can be off
-    (:mod:`torchfill.qc.finish`); observed coordinates stay bit for bit."""
-    data = case.data
-    X = torch.where(case.missing[..., None], float("nan"), out).cpu().numpy()
-    seq = isinstance(data, MarkerSequence)
-    F, changed = short_gap_fallback(X, out.cpu().numpy(), data.rate if seq else None,
-                                    per_mm(data.units if seq else "mm", X.shape[2]))
-    info["short_gaps"] = len(changed)
-    if changed:
-        out = torch.where(case.own, out, torch.as_tensor(F, dtype=out.dtype, device=out.device))
-    bound = torch.as_tensor(std_bound(X, F), dtype=std.dtype, device=std.device)
-    return out, torch.minimum(std, bound)
-
-
-def _reject(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, units: str,
-            limit_mm: float) -> int:
-    """Leave NaN the filled samples whose estimated 3-D error (sqrt(3) x the per-coordinate std)
-    is above ``limit_mm`` -- at a trial end from the first such sample to the end of the trial,
-    inside a trial the whole gap when its RMS estimate is above it; returns how many were left NaN
-    (one warning says how many)."""
-    if str(units).strip().lower() not in ("mm", "cm", "m") or not bool(torch.isfinite(std).any()):
-        return 0                                    # e.g. pixels: no threshold in mm
-    scale = 1.0 / per_mm(units)
-    T = out.shape[0]
-    err = (3.0 ** 0.5 * std * scale).cpu().numpy()
-    count = 0
-    for j, a, b in gap_runs(missing.cpu().numpy()):         # the gaps, parts left NaN or not
-        e = np.nan_to_num(err[a:b, j], nan=0.0)
-        bad = np.flatnonzero(e > limit_mm)
-        if bad.size == 0:
-            continue
-        if a == 0 and b < T:                        # trial start: far part, up to the worst
-            drop = slice(a, a + int(bad.max()) + 1)
-        elif b == T and a > 0:                      # trial end: from the first bad to the end
-            drop = slice(a + int(bad.min()), b)
-        elif float(np.sqrt(np.mean(e ** 2))) > limit_mm:
-            drop = slice(a, b)
-        else:
-            continue
-        count += int(torch.isfinite(out[drop, j]).all(dim=1).sum())     # not those already NaN
-        out[drop, j] = float("nan")
-    if count:
-        warnings.warn(f"{count} filled sample(s) left unfilled: their estimated error is above "
-                      f"{limit_mm:g} mm (reject=None fills them)", UnfilledWarning,
-                      stacklevel=5)
-    return count
-
-
-def _leave_untested(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data) -> int:
-    """Leave NaN the filled samples :func:`torchfill.qc.untested` names (markers never seen in two
-    consecutive frames; only where the fill has an error estimate); returns how many, with one
-    warning naming the markers."""
-    drop = torch.as_tensor(untested(missing.cpu().numpy(), std.cpu().numpy()), device=out.device)
-    return _leave_nan(out, drop & torch.isfinite(out).all(dim=2), data,
-                      "never seen in two consecutive frames, so neither the fill nor its error "
-                      "estimate has observed motion to go on")
-
-
-def _leave_alone(out: torch.Tensor, std: torch.Tensor, missing: torch.Tensor, data,
-                 segments: dict) -> int:
-    """Leave NaN the filled samples :func:`torchfill.qc.alone` names (markers whose segment-mates
-    are never observed, estimate above the QC's check level); returns how many, with one warning
-    naming the markers."""
-    units = data.units if isinstance(data, MarkerSequence) else "mm"
-    drop = torch.as_tensor(alone(torch.isfinite(out).all(dim=2).cpu().numpy(),
-                                 missing.cpu().numpy(), std.cpu().numpy(), segments, units),
-                           device=out.device)
-    return _leave_nan(out, drop, data,
-                      f"no other marker of their segment is ever observed and their estimated "
-                      f"error is above {EST_CHECK_MM:g} mm, so the fill alone would pose the "
-                      f"segment")
-
-
-def _leave_nan(out: torch.Tensor, drop: torch.Tensor, data, why: str) -> int:
-    """Set the (T, J) samples ``drop`` of ``out`` to NaN; one UnfilledWarning says how many, of
-    which markers, and ``why``. Returns how many."""
-    count = int(drop.sum())
-    if count:
-        out[drop] = float("nan")
-        which = drop.any(dim=0)
-        warnings.warn(f"{count} filled sample(s) of {int(which.sum())} marker(s) left NaN: {why} "
-                      f"({_marker_names(data, which, 8)}; extrapolate=None fills them)",
-                      UnfilledWarning, stacklevel=6)
-    return count
-
-
-def _unfill_long_gaps(out: torch.Tensor, given: torch.Tensor, missing: torch.Tensor,
-                      max_gap: int) -> torch.Tensor:
-    """Put the long gaps back as they were given (NaN, except finite coordinates of a sample
-    that was only partly missing: those are observed and stay)."""
-    long = [(j, a, b) for j, a, b in gap_runs(missing.cpu().numpy()) if b - a > max_gap]
-    for j, a, b in long:
-        out[a:b, j] = given[a:b, j]
-    if long:
-        warnings.warn(f"{len(long)} gap(s) longer than max_gap={max_gap} frames left unfilled",
-                      UnfilledWarning, stacklevel=5)
-    return out
-
-
-def _marker_names(data, which: torch.Tensor, most: int | None = None) -> str:
-    idx = torch.nonzero(which).flatten().tolist()
-    names = [data.labels[i] for i in idx] if isinstance(data, MarkerSequence) else list(map(str, idx))
-    more = most is not None and len(names) > most
-    return ", ".join(names[:most] if more else names) + (" ..." if more else "")

@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 
-
 @dataclass
 class MarkerSequence:
     """A marker recording: ``points`` of shape ``(T, J, D)`` (frames x markers x coordinates).
@@ -80,6 +79,10 @@ class MarkerSequence:
     def with_points(self, points: np.ndarray) -> "MarkerSequence":
         """A copy carrying new points and the same labels, rate, units, source and meta."""
         return replace(self, points=np.asarray(points, dtype=np.float64), meta=dict(self.meta))
+
+    def per_mm(self) -> float:
+        """This recording's units per mm (see :func:`per_mm`)."""
+        return per_mm(self.units)
 
     def select(self, markers) -> "MarkerSequence":
         """A copy with only the given marker indices (or labels)."""
@@ -290,8 +293,16 @@ def _labels_key(key) -> bool:
     return isinstance(key, (list, tuple)) and len(key) > 0 and all(isinstance(k, str) for k in key)
 
 
-#: Power of ten of each length unit in metres.
+#: Power of ten of each length unit in metres (the one table of length units).
 UNITS = {"m": 0, "cm": -2, "mm": -3}
+#: The same units as units per mm (m 0.001, cm 0.1, mm 1).
+UNITS_PER_MM = {units: 10.0 ** (UNITS["mm"] - power) for units, power in UNITS.items()}
+
+
+def per_mm(units: str) -> float:
+    """Length ``units`` per mm (see :data:`UNITS_PER_MM`); 1 for units that are no length
+    unit (pixels)."""
+    return UNITS_PER_MM.get((units or "mm").strip().lower(), 1.0)
 #: Named axis turns: the new x, y, z as signed old axes.
 AXES = {"zup-to-yup": "x,z,-y", "yup-to-zup": "x,-z,y"}
 

@@ -34,10 +34,9 @@ import numpy as np
 import torch
 
 from .metrics import gap_runs
+from .options import WINDOW
 from .runtime.threads import thread_map
 
-#: Default window length in frames (chosen on accuracy and speed, see the README's "Long recordings").
-WINDOW = 6000
 #: Smallest overlap between windows, in frames.
 MIN_OVERLAP = 100
 

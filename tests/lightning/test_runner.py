@@ -184,9 +184,9 @@ def test_training_recordings_aligned_by_label_only_for_solvers_that_take_them(sm
     calls = []
     real = filling.fill_case
 
-    def spy(data, method, params, **kw):
-        calls.append((method, kw["training"]))
-        return real(data, method, params, **kw)
+    def spy(data, options, **kw):
+        calls.append((options.method, options.training))
+        return real(data, options, **kw)
 
     monkeypatch.setattr(filling, "fill_case", spy)
     path = write_config(tmp_path, "recordings: [cmu_02_01.c3d]\ntraining: [hdm05_dg_06-03_03_120.c3d]\n"
@@ -270,9 +270,9 @@ def test_segments_cut_the_recording_and_self_training_is_the_rest(smoke_data, tm
         seen.append(s0)
         assert mask.shape == (50, truth.shape[1]) and mask.any()
         np.testing.assert_array_equal(np.concatenate(rest), np.delete(truth, range(s0, s0 + 50), 0))
-        params, kwargs = runner.fill_arguments(cfg, case, rec, rest)
-        assert "training" not in params
-        assert sum(len(a) for a in kwargs["training"]) == len(truth) - 50   # never the segment
+        options = runner.fill_options(cfg, case, rec, rest)
+        assert "training" not in options.params
+        assert sum(len(a) for a in options.training) == len(truth) - 50   # never the segment
     assert seen == sorted(set(seen)) and len(seen) == 3
 
 

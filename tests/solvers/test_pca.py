@@ -9,7 +9,7 @@ import torch
 import torchfill
 from torchfill import gaps, metrics
 from torchfill.solvers import get_solver
-from torchfill.solvers.pca import _CACHE, edge_weights, explained_rank, temporal_estimate
+from torchfill.solvers.pca import _KEPT, edge_weights, explained_rank, temporal_estimate
 
 J = 12
 
@@ -161,12 +161,12 @@ def test_training_hyperparameter_is_deprecated_but_still_used():
 def test_eigenspace_cached_across_fills():
     draw = spatial_data(seed=4)
     training = [draw(300)]
-    _CACHE.clear()
+    _KEPT.clear()
     for seed in range(3):
         X = draw(100)
         X[torch.as_tensor(gaps.evenly_spaced(100, J, n_gaps=3, gap_length=30, seed=seed))] = float("nan")
         torchfill.fill(X.numpy(), method="pca_train", training=training)
-    assert len([k for k in _CACHE if k[0] == "spatial"]) == 1
+    assert len(_KEPT._kept) == 1                    # one training set: one spatial eigenspace
 
 
 def test_explained_rank_and_weights():

@@ -34,7 +34,7 @@ def _cmd_fill_batch(args) -> int:
     inputs = batch.expand(args.input)
     if not inputs:
         raise ValueError(f"{' '.join(args.input)}: no recordings found")
-    method, options = _fill_options(args, None)
+    options = _fill_options(args, None)
     _side_check(args.report, "--report")
     if args.std and args.std.lower() == "none":
         args.std = ""                                   # no estimate file, not even beside
@@ -56,14 +56,14 @@ def _cmd_fill_batch(args) -> int:
             plan.add_output(dst, "output", folder=src.is_dir(), hint="choose another --out-dir")
             report, std = (batch.side_name(side[k], src, k) if side[k] else None
                            for k in ("report", "std"))
-            if args.std is None and method == "auto":       # its estimate comes with the fill
+            if args.std is None and options.method == "auto":   # its estimate comes with it
                 std = estimate_path(dst)
             for path, what in ((report, "report"), (std, "--std file")):
                 if path is not None:
                     plan.add_output(path, what)
-            jobs.append(batch.Job(str(src), str(dst), method, options, args.max_gap,
-                                  tuple(args.training or ()), report=report and str(report),
-                                  std=std and str(std), read_options=options_of[src],
+            jobs.append(batch.Job(str(src), str(dst), options, tuple(args.training or ()),
+                                  report=report and str(report), std=std and str(std),
+                                  read_options=options_of[src],
                                   rejected=args.rejected or "keep"))
     if args.session:        # the batch's other files of each marker set as training, read once
         pool = batch.session(inputs, [options_of[src] for src in inputs])

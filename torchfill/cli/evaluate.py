@@ -31,7 +31,10 @@ def _cmd_evaluate(args) -> int:
     _say(args, f"{truth}" + (f"  ({merged} duplicate-label marker(s) merged)" if merged else "")
          + f"\nprotocol {args.protocol} {kwargs} seed {args.seed}: {int(mask.sum())} observed "
          f"samples hidden in {int(mask.any(axis=0).sum())} markers")
-    factor, units = _MM.get(truth.units, (1.0, truth.units))
+    from torchfill.sequence import UNITS_PER_MM          # errors are reported in mm
+
+    factor, units = ((1.0 / UNITS_PER_MM[truth.units], "mm") if truth.units in UNITS_PER_MM
+                     else (1.0, truth.units))
     rows, said = [], {}
     for method in methods:
         with _naming(args.input), warnings.catch_warnings(record=True) as caught:
@@ -92,10 +95,6 @@ def _best(rows: list[dict], units: str, default: str) -> str:
     elif mine is not None and default == best["method"]:
         line += "; it is the default"
     return line + ")"
-
-
-#: Errors are reported in mm: factor from the file's units.
-_MM = {"mm": (1.0, "mm"), "m": (1000.0, "mm"), "cm": (10.0, "mm")}
 
 
 def _protocol_kwargs(args, J: int) -> dict:

@@ -28,11 +28,12 @@ def _cmd_fill(args) -> int:
     plan, out_path, backup = _plan_fill(args, src)     # every check before any file is read
     written_as = _trc_options(args, src, out_path)
     with plan:
-        method, options = _fill_options(args, src)
+        options = _fill_options(args, src)
+        method = options.method
         plan.keep_templates()
         seq = torchfill.read(src, **_pose_options(args))
         if args.training:
-            options["training"] = [torchfill.read(path) for path in args.training]
+            options = options.replace(training=[torchfill.read(path) for path in args.training])
         plan.confirm_inputs()
         n_missing = int(seq.mask.sum())
         _say(args, f"{seq}\nfilling {n_missing} missing samples with {method} ...")
@@ -40,8 +41,8 @@ def _cmd_fill(args) -> int:
         want_std = bool(std_path or args.report or args.report_json
                         or args.rejected == "drop")            # the qc verdict uses it
         with _naming(src):
-            filled = torchfill.fill(seq, method, max_gap=args.max_gap, progress=_progress(args),
-                                    return_std=want_std, **options)
+            filled = torchfill.fill(seq, options=options.replace(progress=_progress(args),
+                                                                 return_std=want_std))
         filled = filled[0] if want_std else filled
         rows = None
         if args.rejected == "drop":

@@ -10,9 +10,12 @@ from pathlib import Path
 from .terminal import _one_line
 
 
-def _fill_options(args, src) -> tuple[str, dict]:
-    """The method and ``fill()`` keywords of the command line, checked before any file is read:
-    method name and ``-p`` names with a "did you mean", values by the method's own checks."""
+def _fill_options(args, src):
+    """The command line's :class:`~torchfill.options.FillOptions`, checked before any file is
+    read: method name and ``-p`` names with a "did you mean", values by the method's own checks
+    and the options' own."""
+    from torchfill.options import FillOptions
+
     from .names import check_params, method_names
 
     src = f"{src}: " if src is not None else ""
@@ -30,22 +33,28 @@ def _fill_options(args, src) -> tuple[str, dict]:
     cls = base._REGISTRY[method]
     declared = [*cls.declared_params(), *cls._merged("renamed")]
     for key in params:
-        if key in _FILL_OPTIONS and key not in declared:     # pma's own window is -p window=
+        if key in _fill_option_names() and key not in declared:   # pma's own window: -p window=
             raise ValueError(f"{src}-p {key}: a fill option, give it as --{key.replace('_', '-')}")
     check_params([method], params, src)
     if (args.training or getattr(args, "session", False)) and "training" not in cls.fit_data:
         takes = [m for m in names if "training" in base._REGISTRY[m].fit_data]
         raise ValueError(f"{src}{method} takes no training data; methods that do: "
                          f"{', '.join(takes)}")
-    options = ({"params": params} | _window(args) | _dtype(args) | _extrapolate(args)
-               | _segments(args))
-    options["constraints"] = args.constraints
-    return method, options
+    options = _window(args) | _dtype(args) | _extrapolate(args) | _segments(args)
+    try:
+        return FillOptions.make(method, params=params, max_gap=args.max_gap,
+                                constraints=args.constraints, **options)
+    except ValueError as err:
+        raise ValueError(f"{src}{_one_line(err)}") from None
 
 
-#: ``fill()`` keywords that have their own command-line option
-_FILL_OPTIONS = ("mask", "max_gap", "window", "constraints", "extrapolate", "return_std", "dtype",
-                 "workers", "progress", "training")
+def _fill_option_names() -> set[str]:
+    """``fill()``'s own options (not the method's hyperparameters)."""
+    from dataclasses import fields
+
+    from torchfill.options import FillOptions
+
+    return {f.name for f in fields(FillOptions)} - {"method", "params"}
 
 
 def _extrapolate(args) -> dict:

@@ -16,10 +16,8 @@ logs to ``<results_dir>/../runs/<name>/`` (or ``<output>/runs`` when ``output`` 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import csv
 import functools
-import multiprocessing
 import os
 import sys
 import time
@@ -39,7 +37,7 @@ def _config(path: str) -> Config:
     return load_config(path)
 
 
-#: ``fill_case``'s arguments for the papers' protocols, what a case gets unless its config says
+#: ``fill_case``'s options for the papers' protocols, what a case gets unless its config says
 #: otherwise (``fill:``; a method's ``constraints: true``): the method's own fill, the whole
 #: recording at once, no extrapolation limit; ``dtype`` is the config's. The case goes to
 #: ``fill_case`` as a tensor on the config's ``device`` (no labels, no rate: segments, where a
@@ -88,17 +86,20 @@ def run_case(config_path: str, case: Case, runs_dir: str, *, showcase: bool = Fa
     return row
 
 
-def fill_arguments(cfg: Config, case: Case, rec, rest) -> tuple[dict, dict]:
-    """``(params, kwargs)`` of the case's call to ``fill_case`` -- and to ``torchfill.fill``,
-    which takes the same: the method's hyperparameters, and ``training``, ``dtype`` and the
-    protocol (:data:`PAPER`, the config's ``fill:``, the method's ``constraints``)."""
+def fill_options(cfg: Config, case: Case, rec, rest):
+    """The case's :class:`~torchfill.options.FillOptions` for ``fill_case`` -- and for
+    ``torchfill.fill``, which takes the same: the method and its hyperparameters, ``training``,
+    ``dtype`` and the protocol (:data:`PAPER`, the config's ``fill:``, the method's
+    ``constraints``)."""
+    from ..options import FillOptions
+
     params = dict(case.method.params)
     kwargs = {**PAPER, "dtype": cfg.dtype, **cfg.fill}
     kwargs.pop("sequence", None)
     if "constraints" in params:
         kwargs["constraints"] = bool(params.pop("constraints"))
     kwargs["training"] = _training(cfg, case, rec.labels, rest, params.pop("training", False))
-    return params, kwargs
+    return FillOptions(case.method.solver, params=params, workers=1, **kwargs).checked()
 
 
 def solve_case(cfg: Config, case: Case, rec, mask, rest, *, runs_dir: str | None = None,
@@ -114,7 +115,7 @@ def solve_case(cfg: Config, case: Case, rec, mask, rest, *, runs_dir: str | None
     from .data import CaseDataModule
     from .module import fit
 
-    params, kwargs = fill_arguments(cfg, case, rec, rest)
+    options = fill_options(cfg, case, rec, rest)
     X = np.where(mask[..., None], np.nan, rec.truth)
     data = (MarkerSequence(X, list(rec.labels), rate=rec.rate, units=rec.units)
             if cfg.fill.get("sequence") else torch.as_tensor(X, device=cfg.device))
@@ -134,7 +135,7 @@ def solve_case(cfg: Config, case: Case, rec, mask, rest, *, runs_dir: str | None
         got.solve_seconds += module.solve_seconds
         got.n_iter += solver.n_iter_
 
-    filled = fill_case(data, case.method.solver, params, solve=solve, workers=1, **kwargs)
+    filled = fill_case(data, options, solve=solve)
     got.filled = np.asarray(filled.points if isinstance(filled, MarkerSequence)
                             else filled.cpu().numpy())
     return got
@@ -215,33 +216,6 @@ def threads_per_case() -> int:
     return int(value)
 
 
-class _ThreadEnv:
-    """Set ``OMP/OPENBLAS/MKL_NUM_THREADS`` (unless the user set them) while worker processes start,
-    so NumPy/SciPy's BLAS in a worker does not spin extra threads against the other workers."""
-
-    NAMES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-    def __init__(self, threads: int) -> None:
-        self.threads, self.saved = str(threads), {}
-
-    def __enter__(self):
-        for name in self.NAMES:
-            if name not in os.environ:
-                self.saved[name] = None
-                os.environ[name] = self.threads
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for name in self.saved:
-            os.environ.pop(name, None)
-
-
-def _init_worker(threads: int = 1) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
-
-
 # -- plan -> execute -> report --------------------------------------------------------------------
 @dataclass
 class Plan:
@@ -306,7 +280,7 @@ def execute(p: Plan, *, workers: int = 1, ray_address: str | None = None) -> Non
         print(f"{cfg.name}: resuming, {len(p.cases) - len(p.todo)} of {len(p.cases)} cases "
               "already done", flush=True)
     todo = p.todo
-    progress = workers == 1 and sys.stdout.isatty()
+    progress = workers == 1 and ray_address is None and sys.stdout.isatty()
     start = time.perf_counter()
     with open(p.csv_path, "a", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=p.header)
@@ -324,39 +298,39 @@ def execute(p: Plan, *, workers: int = 1, ray_address: str | None = None) -> Non
                   flush=True)
 
         args = [(str(cfg.path), c, str(p.runs_dir)) for c in todo]
-        show = [_is_showcase(c, p.showcase) for c in todo]
-        threads = threads_per_case()
-        if ray_address is not None:
-            from ..batch import ray_map
-
-            for i, row in enumerate(ray_map(run_case, args, ray_address,
-                                            kwargs=[{"showcase": s} for s in show]), 1):
-                record(i, row)
-        elif workers == 1:
-            import torch
-
-            before = torch.get_num_threads()
-            torch.set_num_threads(threads)
-            try:
-                for i, (a, s) in enumerate(zip(args, show), 1):
-                    record(i, run_case(*a, showcase=s, progress=progress))
-            finally:
-                torch.set_num_threads(before)
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            pool_env = _ThreadEnv(threads)     # BLAS/OpenMP threads of the workers (read at start)
-            with pool_env, cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                                                  initargs=(threads,)) as pool:
-                futures = [pool.submit(run_case, *a, showcase=s) for a, s in zip(args, show)]
-                try:
-                    for i, fut in enumerate(cf.as_completed(futures), 1):
-                        record(i, fut.result())
-                except BaseException:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+        kwargs = [{"showcase": _is_showcase(c, p.showcase), "progress": progress} for c in todo]
+        for i, (_, row) in enumerate(_run_cases(args, kwargs, workers, ray_address), 1):
+            record(i, row)
     elapsed = time.perf_counter() - start
     print(f"{cfg.name}: {len(todo)} case(s) in {elapsed:.1f} s with {workers} worker(s)", flush=True)
+
+
+def _run_cases(args: list[tuple], kwargs: list[dict], workers: int, ray_address: str | None):
+    """``(i, row)`` of every case as it finishes, through the runtime's process pool
+    (:func:`torchfill.runtime.pool.imap`); in this process with torch's threads set to
+    :func:`threads_per_case` meanwhile."""
+    from ..runtime.pool import imap
+
+    threads = threads_per_case()
+
+    def died(i: int, how: str) -> dict:
+        row = R.key_row(args[i][1])
+        row.update(solver=args[i][1].method.solver, status=f"error: the worker process died "
+                   f"({how}) on both tries")
+        return row
+
+    if ray_address is not None or workers > 1:
+        yield from imap(run_case, args, kwargs, workers=workers, ray_address=ray_address,
+                        threads=threads, died=died)
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield from imap(run_case, args, kwargs)
+    finally:
+        torch.set_num_threads(before)
 
 
 def report(p: Plan, *, workers: int = 1) -> Path:

@@ -45,6 +45,7 @@ import numpy as np
 from .. import metrics
 from ..constraints import (END_STEP_FACTOR, SPATIAL_MIN, STEP_FACTOR, STEP_PERCENTILE,
                            VOLUME_MARGIN, rigid_donors)
+from ..sequence import UNITS_PER_MM as _PER_MM
 from ..solvers.rigid import index_segments, rigid_pairs
 
 # The constants below were chosen with scripts/calibrate_qc.py on its own cases (the tennis file
@@ -98,7 +99,6 @@ EXTRAPOLATED_SECONDS = 0.25
 BODY_SCALE_MM = 650.0
 
 VERDICTS = ("ok", "check", "reject")
-_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001}
 
 
 @dataclass(frozen=True)

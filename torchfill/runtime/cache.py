@@ -1,4 +1,6 @@
-"""Results kept for inputs seen again, by a fingerprint of the inputs' bytes.
+"""Results kept for inputs seen again, by a fingerprint of the inputs' bytes: the one cache of
+the package (every :class:`Memo` is forgotten at once by :func:`clear_all`, between the windows
+of a long recording).
 
 ``auto`` fits several candidates on one recording and one mask, and some of them compute the
 same pieces from the same data (the Gløersen fill inside ``pma`` and as ``pca_gloersen``, the PMA
@@ -63,7 +65,11 @@ class Memo:
 
     def __call__(self, compute: Callable[[], Any], *parts: Any) -> Any:
         """``compute()``, or the result kept for the same ``parts``."""
-        key = fingerprint(*parts)
+        return self.keyed(fingerprint(*parts), compute)
+
+    def keyed(self, key: bytes | None, compute: Callable[[], Any]) -> Any:
+        """``compute()``, or the result kept under ``key`` (a caller's own fingerprint; None:
+        not kept)."""
         if key is None:
             return compute()
         with self._lock:

@@ -92,7 +92,7 @@ class Auto(Solver):
     name = "auto"
     iterative = False
     spatial = True
-    fit_data = ("training", "post")
+    fit_data = ("training", "post", "segments")
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "candidates": Param(None, (tuple, list), allow_none=True,

@@ -69,21 +69,17 @@ IEEE Access 8, 76980-76990 (2020), doi:10.1109/ACCESS.2020.2989744.
 from __future__ import annotations
 
 import hashlib
-import threading
 import warnings
-from collections import OrderedDict
-from typing import Any
 
 import torch
 
 from .. import ops
+from ..runtime.cache import Memo
 from .base import Param, Solver, _deprecated, register
 
 Tensor = torch.Tensor
 
-_CACHE: "OrderedDict[tuple, Any]" = OrderedDict()
-_CACHE_SIZE = 16
-_CACHE_LOCK = threading.Lock()
+_KEPT = Memo(16)               # training eigenspaces, by the training's fingerprint
 
 
 # -- small pure helpers ------------------------------------------------------------------------
@@ -138,16 +134,8 @@ def _fingerprint(items: list[Tensor]) -> str:
 
 
 def _cached(key: tuple, make):
-    with _CACHE_LOCK:                   # fill() may solve windows in threads
-        if key in _CACHE:
-            _CACHE.move_to_end(key)
-            return _CACHE[key]
-    value = make()
-    with _CACHE_LOCK:
-        _CACHE[key] = value
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    return value
+    """``make()``, or its result kept for ``key`` (cleared with the runtime's cache)."""
+    return _KEPT(make, *key)
 
 
 # -- spatial eigenspace (Eq. 1-4) --------------------------------------------------------------

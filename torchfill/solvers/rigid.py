@@ -40,9 +40,7 @@ Acta Crystallographica A 32(5), 922-923.
 from __future__ import annotations
 
 import hashlib
-import threading
 import warnings
-from collections import OrderedDict
 from collections.abc import Mapping
 
 import numpy as np
@@ -51,6 +49,7 @@ import torch
 from .. import segments as _segments
 from ..metrics import norm_last
 from ..ops.rotation import kabsch
+from ..runtime.cache import Memo
 from .base import Param, Solver, register
 from .interp import Pchip
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
@@ -443,19 +442,10 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     Xc /= s
     Xc[~seen] = np.nan
     segs = index_segments(segments, labels, Xc, seen)
-    key = _fingerprint(Xc, seen, segs, min_mates)
-    with _CACHE_LOCK:
-        hit = _CACHE.get(key)
-    kept = hit is not None or Xc.nbytes <= CACHE_BYTES
-    if hit is None:
-        hit = _segment_fill(Xc, seen, segs, min_mates)
-        if kept:
-            with _CACHE_LOCK:
-                _CACHE[key] = hit
-                while len(_CACHE) > CACHE_ENTRIES:
-                    _CACHE.popitem(last=False)
+    key = _fingerprint(Xc, seen, segs, min_mates) if Xc.nbytes <= CACHE_BYTES else None
+    hit = _KEPT.keyed(key, lambda: _segment_fill(Xc, seen, segs, min_mates))
     del Xc
-    est, std, seg_of, bridged = (a.copy() for a in hit) if kept else hit   # a kept one unchanged
+    est, std, seg_of, bridged = (a.copy() for a in hit)     # a kept one stays unchanged
     est *= s                        # in place: long recordings hold fewer full-length copies
     est += m
     std *= s
@@ -473,14 +463,12 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
 #: default's 42 s on bench_long's 3000 frames.
 CACHE_ENTRIES = 4
 CACHE_BYTES = 64 << 20
-_CACHE: "OrderedDict[bytes, tuple]" = OrderedDict()
-_CACHE_LOCK = threading.Lock()
+_KEPT = Memo(CACHE_ENTRIES, max_bytes=2 * CACHE_BYTES)     # the results: ~1.7x the positions
 
 
 def clear_cache() -> None:
     """Forget :func:`segment_fill`'s kept results (benchmarks time the computation itself)."""
-    with _CACHE_LOCK:
-        _CACHE.clear()
+    _KEPT.clear()
 
 
 def _frame_of(X: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, float]:
@@ -626,17 +614,17 @@ class Rigid(Solver):
     left across a hole in them inside a gap; PCHIP elsewhere, with a warning that counts those
     samples (``history_[-1]["fallback"]``).
 
-    ``segments``: a dict segment name -> marker indices (``fill()`` passes the segments it
-    resolved from the labels, the data or the user's file), or None: found from the data.
+    ``segments`` (fit data): a dict segment name -> marker indices (``fill()`` passes the
+    segments it resolved from the labels, the data or the user's file); not given: found from
+    the data.
     """
 
     name = "rigid"
     iterative = False
     spatial = True
+    fit_data = ("segments",)
     params = {
         "max_iter": Param(1, int, low=1, doc="unused: one shot"),
-        "segments": Param(None, dict, allow_none=True,
-                          doc="segment name -> marker indices (None: found from the data)"),
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
         "fallback": Param(True, bool, doc="where fewer mates are seen: carried across the hole "
                                           "inside a gap, PCHIP elsewhere (False: leave NaN "
@@ -654,7 +642,7 @@ class Rigid(Solver):
     def step(self) -> dict[str, float]:
         seen = self.Omega_.all(dim=2)
         X = torch.where(seen[..., None], self.M_, torch.nan)
-        segments = self.segments if self.segments is not None else "data"
+        segments = self.fit_data_.get("segments", "data")
         est, std, self.segment_of_, bridged = segment_fill(
             X.cpu().numpy(), seen.cpu().numpy(), segments, min_mates=self.min_partners,
             bridge=True)

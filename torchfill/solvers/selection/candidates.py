@@ -116,8 +116,8 @@ class Fits:
         takes = [k for k in solver.fit_data              # a spatial default candidate learns
                  if k != "training" or name.endswith(SESSION)     # from training as +session
                  or not solver.spatial or name in (self.explicit or ())]
-        data = {k: [(t - self.mu) / self.sigma for t in v] for k, v in self.fit_data.items()
-                if k in takes}                            # training data in the fit's units
+        data = {k: [(t - self.mu) / self.sigma for t in v] if k == "training" else v
+                for k, v in self.fit_data.items() if k in takes}   # training in the fit's units
         if case is not None and "training" in data:
             data["training"] = case[1]
         with warnings.catch_warnings():
