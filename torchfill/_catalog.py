@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SOLVERS = Path(__file__).parent / "solvers"
-FILLING = Path(__file__).parent / "filling.py"
+OPTIONS = Path(__file__).parent / "options.py"
 
 #: Speed class of each method: ``fast`` about a second or less on 3000 frames x 41 markers,
 #: ``medium`` a few seconds, ``slow`` tens of seconds (measurements: docs/speed.md).
@@ -59,14 +59,14 @@ def catalog() -> list[Entry]:
 
 
 def default() -> str:
-    """The default method: the first of ``filling.DEFAULT_METHODS`` that is registered."""
-    tree = ast.parse(FILLING.read_text(encoding="utf-8"))
+    """The default method: the first of ``options.DEFAULT_METHODS`` that is registered."""
+    tree = ast.parse(OPTIONS.read_text(encoding="utf-8"))
     names = {e.name for e in catalog()}
     for node in tree.body:
         if isinstance(node, ast.Assign) and any(
                 isinstance(t, ast.Name) and t.id == "DEFAULT_METHODS" for t in node.targets):
             return next(m for m in ast.literal_eval(node.value) if m in names)
-    raise LookupError("DEFAULT_METHODS not found in filling.py")
+    raise LookupError("DEFAULT_METHODS not found in options.py")
 
 
 def mentioned(name: str) -> bool:
