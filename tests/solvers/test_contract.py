@@ -524,4 +524,5 @@ def test_cli_param_goes_to_the_method_not_to_fill(tmp_path, monkeypatch):
     code = main(["fill", str(src), "-o", str(tmp_path / "out.npy"), "-m", "pma", "-p", "window=15",
                  "--window", "0", "--no-constraints", "-q"])
     assert code == 0
-    assert calls[0]["params"] == {"window": 15} and calls[0]["window"] is None
+    options = calls[0]["options"]                        # the CLI passes its FillOptions
+    assert options.params == {"window": 15} and options.window is None
