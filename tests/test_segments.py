@@ -54,6 +54,28 @@ def test_two_subjects_get_their_own_segments(recording):
     assert set(idx["Derrick:pelvis"]).isdisjoint(idx["Viktor:pelvis"])
 
 
+def test_every_stick_marker_gets_a_segment_from_the_data(recording):
+    """biomechZoo hockey: the Plug-in Gait tables name no segment for the stick's ten markers nor
+    three mates for a thigh marker; a fill's segments (names, then the data for those) give every
+    marker a segment with three mates or more, keep the named ones as they are, and print each
+    one's source."""
+    seq = torchfill.read(recording("biomechzoo_hockey_wrist_shot_009.c3d"))
+    named = Segments.from_names(seq.labels)
+    seg = resolve(None, seq.labels, seq.points, ~seq.mask)
+    assert seg.source == "names+data" and all(seg[s] == m for s, m in named.items())
+    idx = seg.indices(seq.labels)
+    for j, label in enumerate(seq.labels):
+        mine = [s for s, m in idx.items() if j in m and len(m) >= 4]
+        assert mine, label
+        if label.startswith("Stick:"):
+            assert all(seg.sources[s] == "data" and s.startswith("data:") for s in mine)
+            assert sum(all(seq.labels[k].startswith("Stick:") for k in idx[s]) for s in mine)
+    text = seg.to_yaml()
+    assert '"head": ["Reed:LFHD", "Reed:RFHD", "Reed:LBHD", "Reed:RBHD"]  # names' in text
+    assert sum(line.endswith("# data") and '"Stick:' in line for line in text.splitlines()) >= 10
+    assert list(parse(text).items()) == list(seg.items())
+
+
 def test_yaml_round_trip_and_bad_files(tmp_path, recording):
     seq = torchfill.read(recording("biomechzoo_hockey_wrist_shot_009.c3d"))
     seg = Segments.from_names(seq.labels)
@@ -187,7 +209,7 @@ def test_segment_fill_leaves_samples_without_three_mates_and_estimates_its_error
     done = np.isfinite(est).all(axis=2)
     assert not done[~mask].any() and (seg_of[done] >= 0).all() and (seg_of[~done] == -1).all()
     assert np.isfinite(std[done]).all() and np.isnan(std[~done]).all()
-    seg = Segments.from_names(truth.labels).indices(truth.labels)
+    seg = resolve(None, truth.labels, P).indices(truth.labels)     # the tables and the data
     seen = ~mask
     for t, j in zip(*np.nonzero(done)):                   # >= 3 mates of one segment seen there
         assert any(j in m and seen[t, [k for k in m if k != j]].sum() >= 3 for m in seg.values())

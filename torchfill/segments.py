@@ -44,7 +44,7 @@ import numpy as np
 
 from .metrics import norm_last
 
-__all__ = ["Segments", "resolve", "load", "pair_stats", "neighbour_pairs", "normalize",
+__all__ = ["Segments", "resolve", "completed", "load", "pair_stats", "neighbour_pairs", "normalize",
            "agreement", "purity"]
 
 #: Each marker's nearest neighbours (in a few frames) whose pair distances are measured: the
@@ -159,7 +159,8 @@ class Segments(OrderedDict):
 
     Build with :meth:`from_names`, :meth:`from_data`, :func:`load` (a user's YAML) or from a plain
     dict; print with :meth:`to_yaml`. ``source`` says where they came from ("names", "data",
-    "user").
+    "user", or "names+data": :func:`resolve`'s tables completed from the data); ``sources`` gives
+    each segment's own.
     """
 
     source: str = "user"
@@ -169,6 +170,17 @@ class Segments(OrderedDict):
         for name, members in (items.items() if isinstance(items, Mapping) else items):
             self[str(name)] = [str(m) for m in members]
         self.source = source
+        self.sources = {name: source for name in self}
+
+    def merged(self, other: "Segments", names: Iterable[str]) -> "Segments":
+        """These segments followed by those of ``other`` named in ``names`` (each keeping its
+        source; ``source`` becomes ``"self+other"``)."""
+        out = Segments(self, source=f"{self.source}+{other.source}")
+        out.sources = {name: self.sources.get(name, self.source) for name in self}
+        for name in names:
+            out[name] = list(other[name])
+            out.sources[name] = other.sources.get(name, other.source)
+        return out
 
     # -- building -----------------------------------------------------------------------------
     @classmethod
@@ -265,11 +277,17 @@ class Segments(OrderedDict):
 
     def to_yaml(self) -> str:
         """The YAML a user can edit and pass back (``segments:`` then one flow list a line)."""
+        where = {"names": "the name tables", "data": "the data", "user": "a user's file",
+                 "names+data": "the name tables, then the data (markers with < 3 mates)"
+                 }.get(self.source, self.source)
         lines = ["# torchfill segments: name -> marker labels (one rigid body each; a marker may",
-                 f"# be in several). Found from the {self.source}; edit and pass back with",
-                 "# --segments FILE or fill(..., segments=FILE).", "segments:"]
+                 f"# be in several). From {where};",
+                 "# each line's source in its comment. Edit and pass back with --segments FILE",
+                 "# or fill(..., segments=FILE).", "segments:"]
+        sources = getattr(self, "sources", {})
         for seg, members in self.items():
-            lines.append(f"  {json.dumps(seg)}: [{', '.join(json.dumps(m) for m in members)}]")
+            lines.append(f"  {json.dumps(seg)}: [{', '.join(json.dumps(m) for m in members)}]"
+                         f"  # {sources.get(seg, self.source)}")
         if not self:
             lines[-1] = "segments: {}"
         return "\n".join(lines) + "\n"
@@ -343,8 +361,10 @@ def _validated(data) -> Segments:
 def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Segments:
     """The segments a fill uses. ``segments``: a :class:`Segments` or dict (used as given), a
     path to a YAML file, ``"names"`` (the tables), ``"data"`` (found from ``X``), or None / "auto":
-    the tables when they cover at least three segments of three markers, else found from the
-    data up to ``DENSE`` markers (a dense surface: none, see ``DENSE``)."""
+    the tables when they cover at least three segments of three markers, completed from the data
+    for every marker they leave with fewer than three mates (:func:`completed`: a prop, a stick,
+    a cluster, a thigh with two named markers), else found from the data up to ``DENSE`` markers
+    (a dense surface: none, see ``DENSE``)."""
     if isinstance(segments, Segments):
         return segments
     if isinstance(segments, Mapping):
@@ -359,10 +379,37 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     if segments in (None, "auto", "names") and labels is not None:
         named = Segments.from_names(labels)
         if segments == "names" or sum(len(m) >= 3 for m in named.values()) >= 3:
-            return named
+            if segments == "names" or X is None or np.shape(X)[1] > DENSE:
+                return named
+            return completed(named, labels, X, observed)
     if X is None or (segments != "data" and np.shape(X)[1] > DENSE):
         return Segments(source="data")
     return Segments.from_data(X, labels, observed, mates=DATA_MATES)
+
+
+#: The name prefix of a segment that completes the others (see :func:`completed`): it fills a
+#: sample only where no other segment does.
+COMPLETION = "data:"
+
+
+def completed(named: Segments, labels: list[str], X, observed=None, least: int = 3) -> Segments:
+    """``named`` and, for every marker they leave with fewer than ``least`` mates (in no named
+    segment of ``least + 1`` markers: extra markers, props, a thigh with two named markers), the
+    data-found segments (:meth:`Segments.from_data` with ``DATA_MATES``) it belongs to, named
+    ``COMPLETION + name``: a completion fills a sample only where no other segment does (the
+    named segments keep their fills: a data-found one that won there on its own hold-out error
+    was worse against gapfill on the hockey recording)."""
+    sizes = [0] * len(labels)
+    for idx in named.indices(labels).values():
+        for j in idx:
+            sizes[j] = max(sizes[j], len(idx))
+    lacking = {labels[j] for j, n in enumerate(sizes) if n <= least}
+    if not lacking:
+        return named
+    found = Segments.from_data(X, labels, observed, mates=DATA_MATES)
+    keep = [s for s, m in found.items() if lacking & set(m)]
+    found = Segments(((COMPLETION + s, found[s]) for s in keep), source="data")
+    return named.merged(found, list(found))
 
 
 # ------------------------------------------------------------------------------------------------

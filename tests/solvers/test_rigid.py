@@ -2,6 +2,8 @@
 <= 2 mm RMSE on simulated gaps of markers with >= 3 observed rigid partners."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -169,15 +171,56 @@ def test_segment_fill_gives_the_same_bits_on_one_thread_and_two():
     assert set(np.unique(results[0][2][250:, 4])) <= {0, 1} and (results[0][2][250:, 4] >= 0).all()
 
 
-def test_fewer_than_three_mates_is_left_to_other_models_and_the_method_says_so():
+def test_one_mate_is_left_to_other_models_and_the_method_says_which_markers():
     truth = _segment_motion()
     X = truth.copy()
-    X[100:160, 0] = np.nan
-    X[100:160, 1] = np.nan               # two of four missing: one mate short
+    X[100:160, :3] = np.nan              # three of four missing: one mate left
     est, _, _ = segment_fill(X, None, {"a": [0, 1, 2, 3]})
-    assert np.isnan(est[100:160, :2]).all()
-    with pytest.warns(UserWarning, match="120 of 120 missing samples .* PCHIP"):
+    assert np.isnan(est[100:160, :3]).all()
+    with pytest.warns(UserWarning, match=r"180 of 180 missing samples .* PCHIP; markers "
+                                         r"\(samples\): 0 \(60\), 1 \(60\), 2 \(60\)"):
         torchfill.fill(X, "rigid", segments={"a": [0, 1, 2, 3]}, constraints=False)
+
+
+def _foot_gaps(recording, name):
+    """RTOE missing over 60 frames at several places of a real recording, RMT5 over those frames
+    and 5 more on each side: two foot mates (RANK, RHEE) seen in the gap, three at its edges."""
+    seq = torchfill.read(recording(name))
+    labels = [str(x).rpartition(":")[2] for x in seq.labels]
+    j, k = labels.index("RTOE"), labels.index("RMT5")
+    mask = np.zeros(seq.points.shape[:2], dtype=bool)
+    for start in range(200, seq.n_frames - 200, 400):
+        mask[start:start + 60, j] = True
+        mask[start - 5:start + 65, k] = True
+    return seq, mask, j
+
+
+def test_two_mates_carry_a_gap_from_both_edges_with_their_own_error(recording):
+    """hdm05_bd_05-01 (Plug-in Gait, 120 Hz): a toe marker whose gaps leave two foot mates seen
+    is filled there from both observed edges (no step at either edge), within a few mm, with an
+    error estimate of the size of the error; these samples go to the default as a fill (not a
+    bridge), observed samples stay bit-identical."""
+    seq, mask, j = _foot_gaps(recording, "hdm05_bd_05-01_01_120.c3d")
+    truth = seq.points
+    gappy = np.where(mask[..., None], np.nan, truth)
+    est, std, seg_of = segment_fill(gappy, None, "names", seq.labels)
+    gap = mask[:, j]
+    assert np.isfinite(est[gap, j]).all() and (seg_of[gap, j] >= 0).all()
+    err = np.linalg.norm(est[gap, j] - truth[gap, j], axis=1)
+    rmse = np.sqrt(np.mean(err ** 2))
+    assert rmse < 5.0
+    assert 0.5 * rmse < np.sqrt(3 * np.mean(std[gap, j] ** 2)) < 10 * rmse
+    steps = np.linalg.norm(np.diff(truth[:, j], axis=0), axis=1)
+    filled = np.where(gap[:, None], est[:, j], truth[:, j])
+    edge = np.flatnonzero(np.diff(gap.astype(int)) != 0)   # the steps into and out of each gap
+    assert (np.linalg.norm(filled[edge + 1] - filled[edge], axis=1)
+            <= 3 * np.percentile(steps, 99) + 1.0).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = torchfill.fill(seq.with_points(gappy), "rigid", segments="names",
+                             constraints=False).points
+    assert np.array_equal(out[~mask], truth[~mask])
+    np.testing.assert_allclose(out[gap, j], est[gap, j], atol=1e-6)   # the rigid method's fill
 
 
 @pytest.mark.parametrize("name", ["HDM_bd_01-02_01_120.c3d", "hdm05_mm_01-02_03_120.c3d"])
@@ -281,8 +324,11 @@ def test_a_hole_in_the_mates_inside_a_gap_is_carried_by_the_mates_left():
     assert not bridged[:, 1:].any()
     err = metrics.norm_last(est[120:140, 0] - truth[120:140, 0])
     assert err.max() < 5.0 and (np.sqrt(3.0) * std[120:140, 0] >= err).all()
-    with pytest.warns(UserWarning, match="20 of 80 missing samples"):    # marker 1's own gap
+    with warnings.catch_warnings(record=True) as caught:    # marker 1's own gap: two mates
+        warnings.simplefilter("always")                     # seen throughout, a two-mate fill
         filled = torchfill.fill(X, "rigid", segments=seg, constraints=False)
+    assert not [w for w in caught if "rigid:" in str(w.message)]
+    assert np.isfinite(est[120:140, 1]).all() and not bridged[120:140, 1].any()
     steps = metrics.norm_last(np.diff(filled[99:161, 0], axis=0))
     assert steps.max() < 1.5 * metrics.observed_steps(X[:, :1], np.isfinite(X[:, :1, 0])).max()
     np.testing.assert_allclose(filled[120:140, 0], est[120:140, 0], rtol=0, atol=1e-9)

@@ -19,13 +19,18 @@ gap); a trial end uses its one edge. The error estimate of
 a sample is measured on observed frames only: carrying observed ``j`` over the same number of
 frames between reference frames (a few lags, up to ``HOLDOUT_FRAMES`` frames each) gives the RMS
 error as a function of reach, interpolated at the sample's reach. Where ``j`` belongs to several
-segments (a knee marker: thigh and shank), each sample takes the segment with the smaller
-estimate (a fit from three mates first). Fewer than three mates observed: inside a gap that the
-fill reaches elsewhere, the sample is carried from the nearest known samples of ``j`` on both
-sides by the mates it shares with them (two: the smallest rotation of their line; one: its shift;
-none: linear in time), so that the gap is one fill rather than a rigid fill with another model's
-pieces in it (the ``rigid`` method; ``auto``'s partial candidate and the rigid donors of
-:mod:`torchfill.constraints` leave such samples out); elsewhere it is left NaN for other models.
+segments (a knee marker: thigh and shank), each sample takes the segment with the smaller estimate
+(a fit from three mates first); a segment that completes the name tables from the data
+(:func:`torchfill.segments.completed`) only where no other segment fills the sample. Fewer than
+three mates observed: inside a gap that the fill reaches elsewhere, the sample is carried from the
+nearest known samples of ``j`` on both sides by the mates it shares with them (two: the smallest
+rotation of their line; one: its shift; none: linear in time), so that the gap is one fill rather
+than a rigid fill with another model's pieces in it (the ``rigid`` method; ``auto``'s partial
+candidate and the rigid donors of :mod:`torchfill.constraints` leave such samples out). A gap with
+two mates seen in every frame and none with three is carried so from its two observed edges (the
+turn about the mates' line taken from each edge, blended across the gap), with its own error
+estimate: the hold-out error of carrying ``j`` by those two mates alone; these samples are a fill
+like a three-mate one. Elsewhere (one mate or none) the sample is left NaN for other models.
 
 **Rigid pairs** (:func:`rigid_pairs`) are the near-neighbour pairs whose distance is nearly
 constant (robust spread ``<= tol x`` the body's size); :mod:`torchfill.constraints` keeps their
@@ -52,6 +57,7 @@ from ..ops.rotation import kabsch
 from ..runtime.cache import Memo
 from .base import Param, Solver, register
 from .interp import Pchip
+from .rigid_batch import _drive, _Kabsch, _Shape
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
 
 Tensor = torch.Tensor
@@ -59,15 +65,12 @@ Tensor = torch.Tensor
 
 #: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
 HOLDOUT_FRAMES = 64
-#: A mate is trusted in a frame while its distances to the other mates stay within this many
-#: times their observed band (twice the robust spread plus the floor); see :func:`_consistency`.
-CONSISTENT = 3.0
 #: The hold-out error (the fill's estimate) is measured on frame pairs with three mates whose
-#: consistency factor (see :func:`_consistency`) stays above this: with a head's four markers and
-#: one of them swapped with a marker 1.8 m away (biomechzoo hockey's LFHD over its last frames),
-#: the hold-out errors of those frames made the head's estimate too large for the default to use
-#: its 3.7 mm fills. The fill itself keeps such frames (the ghost down-weighted): leaving them to
-#: the other models took ``rigid`` there from 0.96 to 6.0 x gapfill's RMSE.
+#: consistency factor (see :func:`.rigid_batch._consistency`) stays above this: with a head's four
+#: markers and one of them swapped with a marker 1.8 m away (biomechzoo hockey's LFHD over its last
+#: frames), the hold-out errors of those frames made the head's estimate too large for the default
+#: to use its 3.7 mm fills. The fill itself keeps such frames (the ghost down-weighted): leaving
+#: them to the other models took ``rigid`` there from 0.96 to 6.0 x gapfill's RMSE.
 FIRM = 0.5
 #: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
 HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
@@ -76,12 +79,12 @@ HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray,
            src: np.ndarray, dst: np.ndarray, min_mates: int = 3, shape=None, firm: bool = False
            ) -> tuple[np.ndarray, np.ndarray]:
-    """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights
-    ``w``; a mate counts where it is observed in both frames; with ``shape``, a mate whose
-    distances to the others are off their observed band in either frame is down-weighted there:
-    :func:`_consistency`; with ``firm``, a frame pair needs ``min_mates`` mates above ``FIRM``
-    there). Returns the estimates (n, 3) and the bool (n,) of those with ``min_mates`` mates.
-    A generator: it yields its consistency and Kabsch work to :func:`_drive`."""
+    """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights ``w``;
+    a mate counts where it is observed in both frames; with ``shape``, a mate whose distances to the
+    others are off their observed band in either frame is down-weighted there:
+    :func:`.rigid_batch._consistency`; with ``firm``, a frame pair needs ``min_mates`` mates above
+    ``FIRM`` there). Returns the estimates (n, 3) and the bool (n,) of those with ``min_mates``
+    mates. A generator: it yields its consistency and Kabsch work to :func:`_drive`."""
     W = w[None] * (seen[src][:, M] & seen[dst][:, M])
     ok = (W > 0).sum(axis=1) >= min_mates
     out = np.full((src.size, 3), np.nan)
@@ -103,116 +106,6 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     R, t = yield _Kabsch((P, Q, W))
     out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
     return out, ok
-
-
-class _Shape(list):
-    """A request of :func:`_drive`: :func:`_consistency` of each ``(P, frames, use, shape)``."""
-
-
-class _Kabsch(tuple):
-    """A request of :func:`_drive`: :func:`kabsch` of ``(P, Q, W)`` (NumPy; answered in NumPy)."""
-
-
-def _drive(tasks: list) -> list:
-    """Run the generators ``tasks`` (:func:`_segment_estimate` of each marker and segment) side
-    by side: each round answers all of their pending requests in one batched computation per
-    mate count (a few large array operations instead of one small one per marker); each
-    request's answer is what it would get alone. Returns their return values in order."""
-    out: list = [None] * len(tasks)
-    asks: dict[int, object] = {}
-
-    def advance(i, answer):
-        try:
-            asks[i] = tasks[i].send(answer)
-        except StopIteration as stop:
-            out[i] = stop.value
-            asks.pop(i, None)
-    for i in range(len(tasks)):
-        advance(i, None)
-    while asks:
-        pending = list(asks.items())
-        answers = _answer([r for _, r in pending])
-        for (i, _), a in zip(pending, answers):
-            advance(i, a)
-    return out
-
-
-def _answer(requests: list) -> list:
-    """The answers to ``requests`` (:class:`_Shape` and :class:`_Kabsch`), grouped by mate count."""
-    jobs = [(r, n) for r in requests if isinstance(r, _Shape) for n in range(len(r))]
-    shapes = _batched(_consistency_rows, [_unique_rows(*r[n]) for r, n in jobs])
-    kab = _batched(_kabsch_rows, [r for r in requests if isinstance(r, _Kabsch)])
-    shapes, kab = iter(shapes), iter(kab)
-    return [[next(shapes) for _ in r] if isinstance(r, _Shape) else next(kab) for r in requests]
-
-
-def _unique_rows(P, frames, use, shape):
-    """``(P, use, D0, band, back)`` of the distinct (frame, mates used) rows: a gap's frames are
-    all carried from the same reference frame."""
-    k = use.shape[1]
-    if k > 40:                                              # the key would overflow
-        return P, use, *shape, None
-    key = frames.astype(np.int64) * (1 << k) + use @ (1 << np.arange(k))
-    _, first, back = np.unique(key, return_index=True, return_inverse=True)
-    return P[first], use[first], *shape, back.reshape(-1)
-
-
-def _batched(fn, jobs: list) -> list:
-    """``fn`` (a list of jobs of one ``k`` -> their results) over ``jobs``, tuples whose first
-    array is (n, k, ...), grouped by ``k``; the results in the jobs' order."""
-    out: list = [None] * len(jobs)
-    by_k: dict[int, list[int]] = {}
-    for i, job in enumerate(jobs):
-        by_k.setdefault(job[0].shape[1], []).append(i)
-    for idx in by_k.values():
-        for i, res in zip(idx, fn([jobs[i] for i in idx])):
-            out[i] = res
-    return out
-
-
-#: Rows of one batched consistency computation (its (n, k, k) arrays stay small).
-ROWS = 1 << 14
-
-
-def _consistency_rows(jobs: list) -> list[np.ndarray]:
-    """:func:`_consistency` of the rows of ``jobs`` (one ``k``: ``(P, use, D0, band, back)``),
-    each job's shape per row, expanded back to every row of its request (``back``)."""
-    P = np.concatenate([j[0] for j in jobs])
-    use = np.concatenate([j[1] for j in jobs])
-    reps = [j[0].shape[0] for j in jobs]
-    D0 = np.repeat(np.stack([j[2] for j in jobs]), reps, axis=0)
-    band = np.repeat(np.stack([j[3] for j in jobs]), reps, axis=0)
-    C = np.concatenate([_consistency(P[a:a + ROWS], use[a:a + ROWS], D0[a:a + ROWS],
-                                     band[a:a + ROWS]) for a in range(0, P.shape[0], ROWS)])
-    parts = np.split(C, np.cumsum(reps)[:-1])
-    return [c if j[4] is None else c[j[4]] for c, j in zip(parts, jobs)]
-
-
-def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
-    """:func:`kabsch` of the requests ``jobs`` (one ``k``: ``(P, Q, W)``) in one batch."""
-    P, Q, W = (torch.from_numpy(np.concatenate([j[i] for j in jobs])) for i in range(3))
-    R, t = kabsch(P, Q, W)
-    cut = np.cumsum([j[0].shape[0] for j in jobs])[:-1]
-    return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
-
-
-def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
-    """Per frame and mate (n, k), a weight factor in (0, 1]: 1 while the mate's distances to the
-    other used mates stay within ``CONSISTENT`` x their bands ``band`` (k, k) of their medians
-    ``D0`` (k, k) (see :func:`_shape`), falling as ``(CONSISTENT / z)^2`` beyond, with ``z`` the
-    lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
-    (one point far from its place in the segment) stops steering the fit, while one bad mate
-    cannot condemn the good ones it is measured against."""
-    D = norm_last(P[:, :, None] - P[:, None])
-    Z = np.abs(D - D0) / band
-    pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
-    pair &= ~np.eye(P.shape[1], dtype=bool)
-    Z = np.where(pair, Z, np.inf)
-    n = pair.sum(axis=2)
-    S = np.sort(Z, axis=2)
-    z = np.take_along_axis(S, np.clip((n - 1) // 2, 0, None)[..., None], axis=2)[..., 0]
-    z = np.where(n > 0, z, 0.0)
-    return (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
 
 
 def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
@@ -280,8 +173,29 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     est = np.full((T, 3), np.nan)
     err = np.full(T, np.nan)
     refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
-    if todo.size == 0 or refs.size == 0:
+    if refs.size == 0:
         return est, err, np.zeros(T, dtype=bool)
+    lags = errs = np.zeros(0)
+    if todo.size:
+        e, good, reach = yield from _three_mates(X, seen, j, M, w, todo, refs, use, min_mates,
+                                                 shape)
+        lags, errs = yield from _holdout_curve(X, seen, j, M, w, refs, shape, reach=float(
+            reach[good].max()) if good.any() else 0.0)
+        if lags.size:
+            r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
+        else:                             # too few observed frames to measure
+            r = np.full(todo.size, np.nan)
+        est[todo[good]] = e[good]
+        err[todo[good]] = r[good]
+    bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
+        np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
+    return est, err, bridged
+
+
+def _three_mates(X, seen, j, M, w, todo, refs, use, min_mates, shape):
+    """:func:`_estimate_at` of the ``todo`` frames from ``refs``; a frame whose nearest references
+    share too few mates with it from the nearest frames where all of its observed mates (then
+    all but the least rigid, ...) were seen with ``j``."""
     e, good, reach = yield from _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
@@ -300,17 +214,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
                     e[sel], good[sel], reach[sel] = e2, g2, r2
                     break
                 S = S[:-1]
-    lags, errs = yield from _holdout_curve(X, seen, j, M, w, refs, shape, reach=float(
-        reach[good].max()) if good.any() else 0.0)
-    if lags.size:
-        r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
-    else:                                 # too few observed frames to measure
-        r = np.full(todo.size, np.nan)
-    est[todo[good]] = e[good]
-    err[todo[good]] = r[good]
-    bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
-        np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
-    return est, err, bridged
+    return e, good, reach
 
 
 def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
@@ -325,7 +229,11 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     in quadrature the anchors' larger estimate, the hold-out ``curve`` at the reach to the nearer
     anchor and the two sides' disagreement times the blend's weight on the farther side (the
     turn about the mates' line that two mates do not see). Returns the bool (T,) of the frames
-    filled here."""
+    filled here.
+
+    A gap that the fill left out whole (both edges observed) is filled where two mates are seen
+    in all of its frames (:func:`_two_mates`); those samples are no bridge: they carry their
+    own error estimate and go to ``auto`` and the donors like a three-mate fit."""
     T = est.shape[0]
     known = seen[:, j] | np.isfinite(est).all(axis=1)
     frame = np.arange(T)
@@ -333,12 +241,17 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     after = np.minimum.accumulate(np.where(known, frame, T)[::-1])[::-1]
     t = np.flatnonzero(~known & (before >= 0) & (after < T))
     b, a = before[t], after[t]
-    keep = ~seen[b, j] | ~seen[a, j]                       # not a gap the fill left out whole
-    t, b, a = t[keep], b[keep], a[keep]
+    use = seen[:, M] & (w > 0)
+    whole = seen[b, j] & seen[a, j]                        # a gap the fill left out whole
+    two = whole & ((use[b] & use[t]).sum(axis=1) >= 2) & ((use[a] & use[t]).sum(axis=1) >= 2)
+    _, gap = np.unique(b[whole], return_inverse=True)
+    lacks = np.bincount(gap.reshape(-1), weights=~two[whole], minlength=1) > 0
+    two[whole] &= ~lacks[gap.reshape(-1)]                  # all of a whole gap's frames or none
+    keep = ~whole | two
+    t, b, a, two = t[keep], b[keep], a[keep], two[keep]
     bridged = np.zeros(T, dtype=bool)
     if t.size == 0:
         return bridged
-    use = seen[:, M] & (w > 0)
     sides = []
     for e in (b, a):
         x = np.where(seen[e, j][:, None], X[e, j], est[e])
@@ -347,9 +260,50 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     est[t] = (1 - s) * sides[0] + s * sides[1]
     anchor = np.maximum(np.where(seen[b, j], 0.0, err[b]), np.where(seen[a, j], 0.0, err[a]))
     split = np.minimum(s, 1 - s)[:, 0] * norm_last(sides[1] - sides[0])     # the turn unseen
-    err[t] = np.sqrt(anchor ** 2 + curve(np.minimum(t - b, a - t)) ** 2 + split ** 2)
-    bridged[t] = True
+    reach = np.minimum(t - b, a - t)
+    err[t] = np.sqrt(anchor ** 2 + curve(reach) ** 2 + split ** 2)
+    if two.any():
+        err[t[two]] = np.sqrt(_two_mates(X, seen, j, M, use[t[two]], reach[two]) ** 2
+                              + split[two] ** 2)
+        two &= np.isfinite(err[t])                         # unmeasured: a bridge
+    bridged[t[~two]] = True
     return bridged
+
+
+def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
+    """Error (3-D RMS) of carrying ``j`` by two mates over ``reach`` frames, per frame whose
+    mates seen are ``use`` (n, k), measured as :func:`_holdout_curve` does on the frames where
+    ``j`` and those two are observed, carried by the smallest rotation of their line (the turn
+    about it unseen); NaN where too few frames show the three together."""
+    out = np.full(reach.size, np.nan)
+    codes = use @ (1 << np.arange(M.size, dtype=np.int64))
+    for code in np.unique(codes):
+        pair = M[[i for i in range(M.size) if code >> i & 1][:2]]
+        if pair.size < 2:
+            continue
+        refs = np.flatnonzero(seen[:, j] & seen[:, pair].all(axis=1))
+        sel = codes == code
+        lags, errs = [], []
+        for lag in HOLDOUT_LAGS:
+            later = np.searchsorted(refs, refs + lag)
+            ok = later < refs.size
+            if ok.sum() < 3:
+                break
+            src, dst = refs[ok], refs[later[ok]]
+            pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
+                             .round().astype(int))
+            src, dst = src[pick], dst[pick]
+            P, Q = X[src][:, pair], X[dst][:, pair]
+            R = _turn(P[:, 1] - P[:, 0], Q[:, 1] - Q[:, 0])
+            x = np.einsum("ncd,nd->nc", R, X[src, j] - P.mean(axis=1)) + Q.mean(axis=1)
+            lags.append(np.median(dst - src))
+            errs.append(np.sqrt(np.mean(np.sum((x - X[dst, j]) ** 2, axis=1))))
+            if lag >= reach[sel].max():
+                break
+        if lags:
+            out[sel] = np.interp(np.log(np.maximum(reach[sel], 1)), np.log(lags),
+                                 np.maximum.accumulate(errs))
+    return out
 
 
 def _carry_few(P, Q, S, x, w) -> np.ndarray:
@@ -535,6 +489,7 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
 
     estimates = _drive([_segment_estimate(X, seen, j, M, w, min_mates, shape)
                         for _, j, M, w, shape in tasks])
+    extra = np.array([s.startswith(_segments.COMPLETION) for s in members] + [False])
     for (si, j, *_), (e, r, b) in zip(tasks, estimates):    # in order: the same choice
         per_coord = r / np.sqrt(3.0)
         rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
@@ -543,6 +498,8 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
         fin = np.isfinite(e).all(axis=1)
         was = bridged[:, j]              # a segment's fit from three mates before any bridge
         better = fin & ((seg_of[:, j] < 0) | ((b == was) & (rank < mine)) | (was & ~b))
+        if extra[si]:                    # a completion: where no other segment fills
+            better &= (seg_of[:, j] < 0) | extra[seg_of[:, j]] | (was & ~b)
         est[better, j] = e[better]
         std[better, j] = per_coord[better]
         seg_of[better, j] = si
@@ -554,7 +511,7 @@ def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
     """Median distances (k, k) among the mates ``M`` and their bands (twice the robust spread,
     about the 95th percentile of a normal deviation, plus ``floor``; robust, so a ghost present in
     a fifth of the frames does not widen it), NaN where a pair was not measured: what
-    :func:`_consistency` checks."""
+    :func:`.rigid_batch._consistency` checks."""
     a, b = np.meshgrid(M, M, indexing="ij")
     idx = stats.lookup(a.ravel(), b.ravel()).reshape(a.shape)
     hit = (idx >= 0) & (a != b)
@@ -663,11 +620,13 @@ class Rigid(Solver):
             base = torch.full_like(self.M_, float("nan"))
         self.X_ = torch.where(done[..., None], R, base.reshape(self.M_.shape))
         missing = int((~seen).sum())
-        fallback = missing - int(done.sum())
-        if fallback and self.fallback:
-            warnings.warn(f"rigid: {fallback} of {missing} missing samples have fewer than "
-                          f"{self.min_partners} segment-mates observed: filled by PCHIP",
-                          UserWarning, stacklevel=2)
+        left = (~seen & ~done).sum(dim=0)
+        fallback = int(left.sum())
+        if fallback and self.fallback:                    # never silent: which, how many
+            where = ", ".join(f"{j} ({int(left[j])})" for j in torch.nonzero(left)[:, 0].tolist())
+            warnings.warn(f"rigid: {fallback} of {missing} missing samples have too few "
+                          f"segment-mates observed for a rigid-body fill: filled by PCHIP; "
+                          f"markers (samples): {where}", UserWarning, stacklevel=2)
         return {"delta": 0.0, "rigid_share": float(done.sum()) / max(missing, 1),
                 "fallback": float(fallback)}
 
