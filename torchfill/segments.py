@@ -278,7 +278,7 @@ class Segments(OrderedDict):
     def to_yaml(self) -> str:
         """The YAML a user can edit and pass back (``segments:`` then one flow list a line)."""
         where = {"names": "the name tables", "data": "the data", "user": "a user's file",
-                 "names+data": "the name tables, then the data (markers with < 3 mates)"
+                 "names+data": "the name tables, then the data (markers with < 2 named mates)"
                  }.get(self.source, self.source)
         lines = ["# torchfill segments: name -> marker labels (one rigid body each; a marker may",
                  f"# be in several). From {where};",
@@ -362,7 +362,7 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     """The segments a fill uses. ``segments``: a :class:`Segments` or dict (used as given), a
     path to a YAML file, ``"names"`` (the tables), ``"data"`` (found from ``X``), or None / "auto":
     the tables when they cover at least three segments of three markers, completed from the data
-    for every marker they leave with fewer than three mates (:func:`completed`: a prop, a stick,
+    for every marker they leave with fewer than two mates (:func:`completed`: a prop, a stick,
     a cluster, a thigh with two named markers), else found from the data up to ``DENSE`` markers
     (a dense surface: none, see ``DENSE``)."""
     if isinstance(segments, Segments):
@@ -387,23 +387,27 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     return Segments.from_data(X, labels, observed, mates=DATA_MATES)
 
 
+#: The name tables are completed from the data for the markers they give fewer mates than this
+#: (:func:`completed`; why not three: docs/segments.md).
+COMPLETE_BELOW = 2
 #: The name prefix of a segment that completes the others (see :func:`completed`): it fills a
 #: sample only where no other segment does.
 COMPLETION = "data:"
 
 
-def completed(named: Segments, labels: list[str], X, observed=None, least: int = 3) -> Segments:
-    """``named`` and, for every marker they leave with fewer than ``least`` mates (in no named
-    segment of ``least + 1`` markers: extra markers, props, a thigh with two named markers), the
-    data-found segments (:meth:`Segments.from_data` with ``DATA_MATES``) it belongs to, named
-    ``COMPLETION + name``: a completion fills a sample only where no other segment does (the
-    named segments keep their fills: a data-found one that won there on its own hold-out error
-    was worse against gapfill on the hockey recording)."""
+def completed(named: Segments, labels: list[str], X, observed=None,
+              mates: int | None = None) -> Segments:
+    """``named`` and, for every marker they leave with fewer than ``mates`` mates (default
+    ``COMPLETE_BELOW``: in no named segment of ``mates + 1`` markers -- extra markers, props, a
+    thigh with two named markers), the data-found segments (:meth:`Segments.from_data` with
+    ``DATA_MATES``) it belongs to, named ``COMPLETION + name``: a completion fills a sample only
+    where no other segment does (the named segments keep their fills; see docs/segments.md)."""
+    mates = COMPLETE_BELOW if mates is None else mates
     sizes = [0] * len(labels)
     for idx in named.indices(labels).values():
         for j in idx:
             sizes[j] = max(sizes[j], len(idx))
-    lacking = {labels[j] for j, n in enumerate(sizes) if n <= least}
+    lacking = {labels[j] for j, n in enumerate(sizes) if n <= mates}
     if not lacking:
         return named
     found = Segments.from_data(X, labels, observed, mates=DATA_MATES)
