@@ -278,7 +278,7 @@ class Segments(OrderedDict):
     def to_yaml(self) -> str:
         """The YAML a user can edit and pass back (``segments:`` then one flow list a line)."""
         where = {"names": "the name tables", "data": "the data", "user": "a user's file",
-                 "names+data": "the name tables, then the data (markers with < 2 named mates)"
+                 "names+data": "the name tables, then the data (markers the tables leave out)"
                  }.get(self.source, self.source)
         lines = ["# torchfill segments: name -> marker labels (one rigid body each; a marker may",
                  f"# be in several). From {where};",
@@ -362,9 +362,9 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     """The segments a fill uses. ``segments``: a :class:`Segments` or dict (used as given), a
     path to a YAML file, ``"names"`` (the tables), ``"data"`` (found from ``X``), or None / "auto":
     the tables when they cover at least three segments of three markers, completed from the data
-    for every marker they leave with fewer than two mates (:func:`completed`: a prop, a stick,
-    a cluster, a thigh with two named markers), else found from the data up to ``DENSE`` markers
-    (a dense surface: none, see ``DENSE``)."""
+    for the markers they leave out (:func:`completed`: a prop, a stick, a cluster of unknown
+    names), else found from the data up to ``DENSE`` markers (a dense surface: none, see
+    ``DENSE``)."""
     if isinstance(segments, Segments):
         return segments
     if isinstance(segments, Mapping):
@@ -387,31 +387,26 @@ def resolve(segments, labels: Iterable[str] | None, X=None, observed=None) -> Se
     return Segments.from_data(X, labels, observed, mates=DATA_MATES)
 
 
-#: The name tables are completed from the data for the markers they give fewer mates than this
-#: (:func:`completed`; why not three: docs/segments.md).
-COMPLETE_BELOW = 2
 #: The name prefix of a segment that completes the others (see :func:`completed`): it fills a
 #: sample only where no other segment does.
 COMPLETION = "data:"
 
 
-def completed(named: Segments, labels: list[str], X, observed=None,
-              mates: int | None = None) -> Segments:
-    """``named`` and, for every marker they leave with fewer than ``mates`` mates (default
-    ``COMPLETE_BELOW``: in no named segment of ``mates + 1`` markers -- extra markers, props, a
-    thigh with two named markers), the data-found segments (:meth:`Segments.from_data` with
-    ``DATA_MATES``) it belongs to, named ``COMPLETION + name``: a completion fills a sample only
-    where no other segment does (the named segments keep their fills; see docs/segments.md)."""
-    mates = COMPLETE_BELOW if mates is None else mates
-    sizes = [0] * len(labels)
-    for idx in named.indices(labels).values():
-        for j in idx:
-            sizes[j] = max(sizes[j], len(idx))
-    lacking = {labels[j] for j, n in enumerate(sizes) if n <= mates}
-    if not lacking:
+def completed(named: Segments, labels: list[str], X, observed=None) -> Segments:
+    """``named`` and the data-found segments (:meth:`Segments.from_data` with ``DATA_MATES``)
+    made only of markers the tables leave out (a stick, a puck, a cluster of unknown names),
+    named ``COMPLETION + name``: a completion fills a sample only where no other segment does.
+    A data-found segment that mixes such markers with named ones is left out: completing the
+    named markers too made the default's fills worse (see docs/segments.md)."""
+    named_idx = named.indices(labels)
+    covered = {j for idx in named_idx.values() for j in idx}
+    unnamed = {labels[j] for j in range(len(labels)) if j not in covered}
+    if not unnamed:
         return named
     found = Segments.from_data(X, labels, observed, mates=DATA_MATES)
-    keep = [s for s, m in found.items() if lacking & set(m)]
+    keep = [s for s, m in found.items() if set(m) <= unnamed]
+    if not keep:
+        return named
     found = Segments(((COMPLETION + s, found[s]) for s in keep), source="data")
     return named.merged(found, list(found))
 
