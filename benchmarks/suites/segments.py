@@ -3,7 +3,8 @@
 Peers, run with the same named segments (``torchfill.segments.Segments.from_names``): gapfill
 ``recover_marker_rbt`` and Kinetics Toolkit ``track_cluster`` (benchmarks/peers.py). Next to
 them: torchfill ``rigid`` with the named segments, ``rigid`` with segments found from the data
-alone (labels hidden), and the default fill. Every method is scored (RMSE, 3-D, mm) on the
+alone (labels hidden), ``rigid`` with the segments a fill resolves when none are given (the
+tables completed from the data: ``rigid_auto``), and the default fill. Every method is scored (RMSE, 3-D, mm) on the
 samples gapfill fills; the table gives each ratio to gapfill's RMSE. Then the agreement of the
 data-found segments with the named tables on the complete recordings (and their purity), and the
 time of ``rigid`` on 3 000 frames x 41 markers::
@@ -40,7 +41,7 @@ AGREEMENT = ("biomechzoo_hockey_wrist_shot_009.c3d", "osim_gait2392_subject01_wa
              "osim_rajagopal_motion_capture_walk.trc", "hdm05_bd_05-01_01_120.c3d",
              "hdm05_mm_01-02_03_120.c3d", "HDM_bd_01-02_01_120.c3d", "hdm05_dg_06-03_03_120.c3d",
              "cmu_135_02.c3d", "cmu_02_01.c3d", "cmu_85_02.c3d", "cmu_85_12.c3d")
-COLS = ("gapfill", "ktk", "rigid", "rigid_data", "default")
+COLS = ("gapfill", "ktk", "rigid", "rigid_data", "rigid_auto", "default")
 
 
 def add_arguments(p) -> None:
@@ -65,6 +66,7 @@ def score(case, methods, row: dict) -> dict:
         "rigid": lambda: torchfill.fill(seq, "rigid", segments="names", constraints=False).points,
         "rigid_data": lambda: torchfill.fill(seq.points, "rigid", segments="data",
                                              constraints=False),
+        "rigid_auto": lambda: torchfill.fill(seq, "rigid", constraints=False).points,
         "default": lambda: torchfill.fill(seq, extrapolate=None).points,
     }
     for m in methods:
