@@ -41,19 +41,22 @@ def std_bound(points, filled, dims: int | None = None) -> np.ndarray:
     lo, hi = metrics.volume(X, observed, 0.0)
     diagonal = float(np.linalg.norm(hi - lo))
     whole = metrics.step_limit(X, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR)
-    for j, a, b in metrics.gap_runs(~observed):
-        if not observed[:, j].any():
-            continue
+    frames = np.arange(T)
+    for j in np.flatnonzero(observed.any(axis=0) & ~observed.all(axis=0)):
         own = observed[:, j]
         cap = (metrics.step_limit(X[:, [j]], own[:, None], q=STEP_PERCENTILE, factor=STEP_FACTOR)
                if (own[1:] & own[:-1]).sum() >= OWN_STEPS else whole)
-        t = np.arange(a, b)
-        best = np.full(b - a, np.inf)
-        for edge in (a - 1, b):
-            if 0 <= edge < T:
-                away = np.linalg.norm(F[a:b, j] - X[edge, j], axis=1) + abs(t - edge) * cap
-                best = np.fmin(best, away)
-        out[a:b, j] = np.minimum(best, diagonal) / math.sqrt(D)
+        gap = ~own
+        best = np.full(int(gap.sum()), np.inf)
+        before = np.maximum.accumulate(np.where(own, frames, -1))[gap]     # nearest edges
+        after = np.minimum.accumulate(np.where(own, frames, T)[::-1])[::-1][gap]
+        for edge in (before, after):
+            ok = (edge >= 0) & (edge < T)
+            e = edge[ok]
+            away = (np.linalg.norm(F[gap, j][ok] - X[e, j], axis=1)
+                    + np.abs(frames[gap][ok] - e) * cap)
+            best[ok] = np.fmin(best[ok], away)
+        out[gap, j] = np.minimum(best, diagonal) / math.sqrt(D)
     return out
 
 
@@ -64,23 +67,33 @@ def short_gap_fallback(points, filled, rate: float | None, per_mm: float = 1.0,
     3-D) from the PCHIP interpolation through up to ``side`` observed samples on each side by
     more than ``AGREE_MM`` (``per_mm``: file units per mm) holds that interpolation instead; and
     those gaps ``(j, start, stop)``. Gaps not wholly filled are left as they are."""
-    from scipy.interpolate import PchipInterpolator
-
     X = np.asarray(points, dtype=np.float64)
     F = np.array(filled, dtype=np.float64, copy=True)
     T = X.shape[0]
     observed = np.isfinite(X).all(axis=2)
     longest = min(SHORT_FRAMES, int(SHORT_SECONDS * rate + 1e-9) if rate else SHORT_FRAMES)
-    changed = []
+    groups: dict[tuple, list] = {}                  # gaps sharing their knots' layout
     for j, a, b in metrics.gap_runs(~observed):
         if a == 0 or b == T or b - a > longest or not np.isfinite(F[a:b, j]).all():
             continue
         t = np.r_[np.arange(max(0, a - side), a), np.arange(b, min(T, b + side))]
         t = t[observed[t, j]]
-        if t.size < 2:
-            continue
-        P = PchipInterpolator(t, X[t, j], axis=0)(np.arange(a, b))
-        if math.sqrt(np.mean(np.sum((F[a:b, j] - P) ** 2, axis=1))) > AGREE_MM * per_mm:
-            F[a:b, j] = P
-            changed.append((int(j), int(a), int(b)))
-    return F, changed
+        if t.size >= 2:
+            groups.setdefault((b - a, tuple(t - a)), []).append((j, a, b, t))
+    changed = []
+    for (n, knots), gaps in groups.items():
+        P = _pchip(np.asarray(knots, dtype=np.float64), X, gaps, n)      # (n, gaps, D)
+        for k, (j, a, b, _) in enumerate(gaps):
+            if math.sqrt(np.mean(np.sum((F[a:b, j] - P[:, k]) ** 2, axis=1))) > AGREE_MM * per_mm:
+                F[a:b, j] = P[:, k]
+                changed.append((int(j), int(a), int(b)))
+    return F, sorted(changed)
+
+
+def _pchip(knots: np.ndarray, X: np.ndarray, gaps: list, n: int) -> np.ndarray:
+    """PCHIP through the samples at ``knots`` (frames relative to each gap's start) of every gap
+    of ``gaps`` at once, evaluated at its ``n`` frames: (n, gaps, D)."""
+    from scipy.interpolate import PchipInterpolator
+
+    Y = np.stack([X[t, j] for j, _, _, t in gaps], axis=1)                  # (knots, gaps, D)
+    return PchipInterpolator(knots, Y, axis=0)(np.arange(n, dtype=np.float64))
