@@ -192,8 +192,10 @@ def doc_blocks() -> dict:
     full = [r for r in rows if r.get("rmse_end", "") != ""]
     source, used = ("all cases", full) if full else ("the quick cases", read_csv(QUICK_CSV))
     if used:
-        got = ik.stored()
-        summary = ik.summarise(*got[:2]) if got else []
+        summary = []
+        for folder in (ik.RESULTS, ik.RESULTS / "peers"):      # ours, then the peers' IK run
+            got = ik.stored(folder)
+            summary += ik.summarise(*got[:2]) if got else []
         out[(BENCHMARK, "benchmark")] = (
             f"From the stored rows of {source} ({len({r['case'] for r in used})} cases, "
             f"{len({r['case'] for r in used if r['split'] == 'held-out'})} held out). "
