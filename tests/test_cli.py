@@ -79,7 +79,7 @@ def test_info_lists_gaps(gappy_npz, capsys):
     (["fill", "{missing}"], "no such file"),
     (["fill", "{bad_suffix}"], "unsupported file type"),
     (["fill", "{gappy}", "-m", "no_such_method"], "unknown method"),
-    (["fill", "{gappy}", "-m", "linear", "-p", "max_iter=-3"], "max_iter expected"),
+    (["fill", "{gappy}", "-m", "svt", "-p", "max_iter=-3"], "max_iter expected"),
     (["fill", "{gappy}", "-m", "linear", "-p", "oops"], "NAME=VALUE"),
     (["fill", "{gappy}", "--max-gap", "-1"], "max_gap expected"),
     (["evaluate", "{gappy}", "--gap-length", "1000"], "gap_length expected"),
@@ -150,9 +150,9 @@ def test_fill_dtype_reaches_fill(gappy_npz, tmp_path):
 @pytest.mark.parametrize("args, needle", [
     (["-m", "tuker"], "unknown method 'tuker'; did you mean 'tucker'?"),
     (["-m", "pchip,tuker"], "unknown method 'tuker'; did you mean 'tucker'?"),
-    (["-m", "linear", "-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean "
+    (["-m", "svt", "-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean "
                                               "'max_iter'?"),
-    (["-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean 'max_iter'?"),
+    (["-p", "seeds=1"], "no hyperparameter 'seeds'; did you mean 'seed'?"),
 ])
 def test_names_are_checked_before_any_work(verb, args, needle, gappy_npz, tmp_path, capsys):
     """A typo is named before the recording is read (nothing printed, nothing written)."""

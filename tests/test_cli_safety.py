@@ -337,7 +337,7 @@ def test_bad_arguments_fail_before_any_file_is_read(tmp_path, walk, capsys, monk
     monkeypatch.setattr(torchfill.io, "read", no_read)
     cases = [
         (["fill", src, "-m", "tuckr"], "did you mean 'tucker'?"),
-        (["fill", src, "-m", "linear", "-p", "max_itr=5"], "did you mean 'max_iter'?"),
+        (["fill", src, "-m", "svt", "-p", "max_itr=5"], "did you mean 'max_iter'?"),
         (["fill", src, "-m", "svt", "-p", "max_iter=-3"], "max_iter expected"),
         (["fill", src, "-m", "linear", "-p", "window=3"], "give it as --window"),
         (["fill", src, "-m", "linear", "--training", src], "takes no training data"),

@@ -152,8 +152,8 @@ def test_bad_input_is_a_one_line_value_error(name):
 
 @pytest.mark.parametrize("kwargs,word", [
     (dict(method="no_such_method"), "unknown method 'no_such_method'"),
-    (dict(method="linear", max_iter=0), "max_iter expected int >= 1, found 0"),
-    (dict(method="linear", max_iter="a"), "max_iter expected int"),
+    (dict(method="svt", max_iter=0), "max_iter expected int >= 1, found 0"),
+    (dict(method="svt", max_iter="a"), "max_iter expected int"),
     (dict(method="linear", bogus=1), "unknown hyperparameter"),
 ])
 def test_bad_method_or_hyperparameter(kwargs, word):

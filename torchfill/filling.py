@@ -217,9 +217,9 @@ def _solve(case: _Case, o: FillOptions, solve: Callable) -> None:
 
     def one(a: int, b: int) -> torch.Tensor:
         X = torch.where(unfit[a:b, keep, None], torch.nan, out[a:b, keep])
-        part = _fill_window(method, params, extra, X.to(case.work or X.dtype), unfit[a:b, keep],
-                            shown, case.info, stds, (a, b), o.constraints, o.return_std,
-                            index[a, b] + 1, len(index), solve, keep, anchors)
+        part = _fill_window(o, params, extra, X.to(case.work or X.dtype), unfit[a:b, keep],
+                            shown, case.info, stds, (a, b), (index[a, b] + 1, len(index)),
+                            solve, keep, anchors)
         if len(index) > 1:              # the next window is other data: what this one kept
             clear_kept()                # for a repeat, and its freed temporaries, go back
             trim_heap()
@@ -414,18 +414,17 @@ def _progress(progress, **kw):
     return make(progress, **kw)
 
 
-def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missing: torch.Tensor,
-                 progress, info: dict,
-                 stds: dict | None = None, key: tuple[int, int] = (0, 0),
-                 constraints: bool = True, holdout: bool = False, window: int = 1,
-                 windows: int = 1, solve: Callable | None = None,
-                 markers: torch.Tensor | None = None, anchors: dict | None = None
-                 ) -> torch.Tensor:
-    """Solve one window: a fresh solver fitted to ``X`` (NaN where ``missing``; ``extra``: fit
-    data such as ``training``); returns its fill and adds its iterations to ``info``. Per-window
-    steps (``auto``'s choice) belong here; the constraints run once, on the whole recording.
-    ``stds``: a dict that receives the window's error estimate (T, J) under its frame range (the
-    solver's ``std_`` -- ``auto`` -- or the method's hold-out error by gap kind)."""
+def _fill_window(o: FillOptions, params: dict, extra: dict, X: torch.Tensor,
+                 missing: torch.Tensor, progress, info: dict, stds: dict, key: tuple[int, int],
+                 number: tuple[int, int], solve: Callable, markers: torch.Tensor,
+                 anchors: dict) -> torch.Tensor:
+    """Solve one window: a fresh solver of ``o.method`` with ``params`` fitted to ``X`` (NaN
+    where ``missing``; ``extra``: fit data such as ``training``); returns its fill and adds its
+    iterations to ``info``. Per-window steps (``auto``'s choice) belong here; the constraints run
+    once, on the whole recording. ``stds``: receives the window's error estimate (T, J) under its
+    frame range ``key`` (the solver's ``std_`` -- ``auto`` -- or, with ``o.return_std``, the
+    method's hold-out error by gap kind); ``number``: (this window, windows)."""
+    method, (window, windows) = o.method, number
     solver = get_solver(method, **params)
     where = {"window": window, "windows": windows, "max_iter": solver.max_iter}
     (solve or _fit)(solver, X, missing, extra, lambda d: progress.update({**where, **d}),
@@ -436,12 +435,12 @@ def _fill_window(method: str, params: dict, extra: dict, X: torch.Tensor, missin
         params.update(solver.carry())           # the next window reuses what this one chose
         info["n_iter"] += solver.n_iter_
     est = getattr(solver, "std_", None)
-    if stds is not None and (est is not None or holdout):
+    if est is not None or o.return_std:
         if est is None:
             est = holdout_std(method, params, X, missing, seed=solver.seed,
-                              post=constrain_candidates if constraints else None, **extra)
+                              post=constrain_candidates if o.constraints else None, **extra)
         stds[key] = est.to(filled.dtype)
-    if anchors is not None and getattr(solver, "anchored_", None) is not None:
+    if getattr(solver, "anchored_", None) is not None:
         anchors[key] = solver.anchored_
     return filled
 

@@ -116,7 +116,7 @@ def test_same_solver_twice_under_two_labels(smoke_data, tmp_path):
     ("protocol: nope\n", "unknown protocol 'nope'"),
     ("recordings: [missing_file.c3d]\n", "recording missing_file.c3d not found"),
     ("colour: red\n", "unknown key"),
-    ("methods: {linear: {max_iter: -1}}\n", "methods.linear"),
+    ("methods: {svt: {max_iter: -1}}\n", "methods.svt"),
     ("grid: {gap_length: [100000]}\n", "gap_length"),
     ("metrics: [rmse, accuracy]\n", "unknown metric"),
     ("frames: [0, 100]\nsegments: {length: 50, count: 2}\n", "frames and segments exclude"),

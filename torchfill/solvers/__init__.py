@@ -7,7 +7,8 @@ never-observed markers from training recordings.
 """
 from importlib import import_module
 
-from .base import NotConvergedWarning, Param, Solver, available, get_solver, register
+from .base import (NotConvergedWarning, OneShotSolver, Param, Solver, available, get_solver,
+                   register)
 
 #: One module per family, in registration order (``torchfill methods`` lists them so, read from
 #: here without importing them); each registers its methods on import.
@@ -20,5 +21,5 @@ del _family
 from .placement import place_from_training  # noqa: E402 (after the families: registration order)
 from .rigid import index_segments  # noqa: E402
 
-__all__ = ["NotConvergedWarning", "Param", "Solver", "available", "get_solver", "index_segments",
-           "place_from_training", "register"]
+__all__ = ["NotConvergedWarning", "OneShotSolver", "Param", "Solver", "available", "get_solver",
+           "index_segments", "place_from_training", "register"]

@@ -38,7 +38,7 @@ from __future__ import annotations
 import torch
 
 from .. import ops
-from .base import Param, Solver, available, register
+from .base import OneShotSolver, Param, available, register
 from .selection import draws
 from .selection.candidates import (DEFAULT_CANDIDATES, PARTIAL, SESSION, Fits,  # noqa: F401
                                    default_names)
@@ -54,7 +54,7 @@ CHOICE_KEYS = frozenset({"tried", "names", "weights", "mse", "error_model", "car
 
 
 @register
-class Auto(Solver):
+class Auto(OneShotSolver):
     """Per-gap choice and averaging of candidate methods from errors on gap-shaped hold-outs of
     the observed data, with an error estimate per filled sample (``std_``).
 
@@ -90,11 +90,9 @@ class Auto(Solver):
     """
 
     name = "auto"
-    iterative = False
     spatial = True
     fit_data = ("training", "post", "segments")
     params = {
-        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "candidates": Param(None, (tuple, list), allow_none=True,
                             doc="method names to try (None: DEFAULT_CANDIDATES that are registered)"),
         "candidate_params": Param(None, dict, allow_none=True,

@@ -2,7 +2,10 @@
 
 Every filler is a ``torch.nn.Module`` with keyword-only hyperparameters, ``fit(X, mask)``,
 ``step()`` (one update of the paper's algorithm), ``forward()`` (the current reconstruction) and
-``history_``. The same loop, stopping rule and history record serve every solver.
+``history_``. The same loop, stopping rule and history record serve every solver. Two contracts:
+an iterative :class:`Solver` repeats ``step()`` until its stopping rule or ``max_iter``; a
+:class:`OneShotSolver` computes its fill in one ``step()`` and declares neither ``max_iter`` nor
+``tol``.
 """
 from __future__ import annotations
 
@@ -364,10 +367,12 @@ class Solver(nn.Module):
 
     @classmethod
     def declared_params(cls) -> dict[str, Param]:
+        """The hyperparameters, merged along the MRO (a ``None`` entry takes an inherited one
+        back: :class:`OneShotSolver`'s ``max_iter`` and ``tol``)."""
         merged: dict[str, Param] = {}
         for klass in reversed(cls.__mro__):
             merged.update(getattr(klass, "params", {}) if issubclass(klass, Solver) else {})
-        return merged
+        return {key: spec for key, spec in merged.items() if spec is not None}
 
     @classmethod
     def _merged(cls, attr: str) -> dict[str, str]:
@@ -606,3 +611,13 @@ class Solver(nn.Module):
 
     def extra_repr(self) -> str:
         return ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+
+
+class OneShotSolver(Solver):
+    """A solver whose fill is one computation (interpolation, a closed-form PCA fill, a rigid
+    reconstruction, ``auto``'s choice): ``fit`` runs :meth:`step` once, so it declares neither
+    ``max_iter`` nor ``tol``; ``max_iter`` reads 1 for the progress display and the runners."""
+
+    iterative = False
+    max_iter: ClassVar[int] = 1
+    params = {"max_iter": None, "tol": None}

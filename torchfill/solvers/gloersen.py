@@ -32,7 +32,7 @@ import torch
 from .. import ops
 from ..runtime.cache import Memo
 from . import session
-from .base import Param, Solver, register
+from .base import OneShotSolver, Param, register
 
 Tensor = torch.Tensor
 
@@ -159,7 +159,7 @@ def _predict(P: Tensor, missing: Tensor, fill: Tensor, weight_scale: float, mm_w
 
 
 @register
-class PCAGloersen(Solver):
+class PCAGloersen(OneShotSolver):
     """Gløersen & Federolf (2016) PredictMissingMarkers, R2 strategy (the WPCA row of Li et al.).
 
     Defaults are the authors' (sigma 200 mm expressed as 0.28 of the mean inter-marker distance of
@@ -168,13 +168,11 @@ class PCAGloersen(Solver):
     """
 
     name = "pca_gloersen"
-    iterative = False
     spatial = True
     #: fit(X, mask, training=[...]): other recordings of the same markers, in X's units, whose
     #: complete frames train the PCA bases too (see :mod:`torchfill.solvers.session`)
     fit_data = ("training",)
     params = {
-        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "weight_scale": Param(0.28, float, low=0.0, low_open=True,
                               doc="sigma of the distance weights, relative to the mean inter-marker distance"),
         "mm_weight": Param(0.02, float, low=0.0, low_open=True, doc="weight of the gapped marker's own columns"),

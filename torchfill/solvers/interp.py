@@ -10,13 +10,10 @@ import numpy as np
 import torch
 
 from .. import ops
-from .base import Param, Solver, register
+from .base import OneShotSolver, register
 
 
-class _Interpolator(Solver):
-    iterative = False
-    params = {"max_iter": Param(1, int, low=1, doc="unused: one shot")}
-
+class _Interpolator(OneShotSolver):
     def _initialize(self) -> None:
         self.X_ = self.M_.clone()
 

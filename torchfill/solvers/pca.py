@@ -75,7 +75,7 @@ import torch
 
 from .. import ops
 from ..runtime.cache import Memo
-from .base import Param, Solver, _deprecated, register
+from .base import OneShotSolver, Param, _deprecated, register
 
 Tensor = torch.Tensor
 
@@ -293,12 +293,10 @@ def window(a: int, b: int, T: int, length: int) -> tuple[int, int]:
 
 
 # -- solvers -----------------------------------------------------------------------------------
-class _PCA(Solver):
+class _PCA(OneShotSolver):
     """Shared set-up: training data in normalized units, complete frames, cached statistics."""
 
-    iterative = False
     params = {
-        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "training": Param(None, (list, tuple), allow_none=True,
                           doc="deprecated (one release): pass the training data to "
                               "fit(X, mask, training=...) or torchfill.fill(..., training=...)"),

@@ -49,7 +49,7 @@ import torch
 
 from .. import ops
 from ..runtime.cache import Memo
-from .base import Param, Solver, register
+from .base import OneShotSolver, Param, register
 from . import session
 from .gloersen import body_centre, predict_missing_markers
 
@@ -453,17 +453,15 @@ def training_tracks(Y: Tensor, pieces: list[tuple[int, int]], window: int) -> Te
 _KEPT_REST = Memo(entries=2)
 
 
-class _Tits(Solver):
+class _Tits(OneShotSolver):
     """Common frame of the Tits et al. (2018) solvers; ``models`` picks which take part."""
 
-    iterative = False
     spatial = True
     #: fit(X, mask, training=[...]): other recordings of the same markers, in X's units, whose
     #: frames train the models too (see :mod:`torchfill.solvers.session`)
     fit_data = ("training",)
     models: ClassVar[frozenset[str]] = frozenset()
     params = {
-        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "window": Param(9, int, low=1, doc="filter window in frames (the paper's 0.07 s at 120 Hz)"),
         "smooth": Param(0.3, float, low=0.0, low_open=True, doc="GRNN spread on normalized features"),
         "space_constraint": Param(True, bool, doc="soft skeleton (reference distance) constraint"),

@@ -55,7 +55,7 @@ from .. import segments as _segments
 from ..metrics import norm_last
 from ..ops.rotation import kabsch
 from ..runtime.cache import Memo
-from .base import Param, Solver, register
+from .base import OneShotSolver, Param, register
 from .interp import Pchip
 from .rigid_batch import _drive, _Kabsch, _Shape
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
@@ -566,7 +566,7 @@ def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
 
 
 @register
-class Rigid(Solver):
+class Rigid(OneShotSolver):
     """Rigid-body fill (weighted Kabsch) from >= 3 observed segment-mates, carried by the mates
     left across a hole in them inside a gap; PCHIP elsewhere, with a warning that counts those
     samples (``history_[-1]["fallback"]``).
@@ -577,11 +577,9 @@ class Rigid(Solver):
     """
 
     name = "rigid"
-    iterative = False
     spatial = True
     fit_data = ("segments",)
     params = {
-        "max_iter": Param(1, int, low=1, doc="unused: one shot"),
         "min_partners": Param(3, int, low=3, doc="observed segment-mates needed"),
         "fallback": Param(True, bool, doc="where fewer mates are seen: carried across the hole "
                                           "inside a gap, PCHIP elsewhere (False: leave NaN "
