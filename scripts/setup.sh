@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Create .venv at the repository root if missing and install torchfill into it (editable, with the
-# dev, plot, experiments and interop extras: the interop tests run rather than skip). torch is
+# dev, plot, experiments, interop and ray extras: the interop and Ray tests run rather than skip;
+# ray adds about 35 s to a fresh install). torch is
 # pinned to 2.13.0 first: on this project's machines that is a CPU build on local disk, and an
 # unpinned torch would pull a multi-GB CUDA build instead.
 # Re-running is cheap: the install is skipped while pyproject.toml and the extras are unchanged.
@@ -16,7 +17,7 @@ if [ ! -x "$venv/bin/python" ]; then
     "$python" -m venv "$venv"
 fi
 stamp="$venv/.torchfill-installed"
-extras="dev,plot,experiments,interop"
+extras="dev,plot,experiments,interop,ray"
 want="$( { cat "$root/pyproject.toml"; echo "$extras"; } | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ] || ! "$venv/bin/python" -c "import torchfill" 2>/dev/null; then
     echo "setup: installing torch==2.13.0 and torchfill into .venv (first run takes a minute)" >&2

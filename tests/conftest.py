@@ -75,3 +75,20 @@ def gappy_sample(tmp_path_factory):
     path = tmp_path_factory.mktemp("sample") / "trial.c3d"
     torchfill.write(out, path)
     return path
+
+
+def _reads_the_recordings(item) -> bool:
+    """Whether a test reads the shared recordings: through the ``data_dir`` or ``recording``
+    fixtures (directly or through another fixture), or parametrized with a file from there."""
+    if {"data_dir", "recording"} & set(getattr(item, "fixturenames", ())):
+        return True
+    params = getattr(getattr(item, "callspec", None), "params", {})
+    return any(isinstance(v, Path) and DATA_DIR in v.parents for v in params.values())
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests on the real recordings are ``slow``: ``pytest -m "not slow"`` is the fast inner loop
+    on synthetic data (every module still runs), the full suite (CI) runs them all."""
+    for item in items:
+        if _reads_the_recordings(item):
+            item.add_marker(pytest.mark.slow)
