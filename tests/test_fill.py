@@ -60,6 +60,34 @@ def test_sequence_in_sequence_out():
     assert out.meta["fill_info"]["method"] == "spline"
 
 
+def test_a_list_in_gives_a_list_out():
+    """``fill([x, x], "pchip")`` of two tensors: two tensors back, each the single fill; recordings
+    of different lengths (ragged) are each filled alone; a tuple gives a tuple."""
+    X, mask, G = gappy_walk()
+    x = torch.tensor(G)
+    out = torchfill.fill([x, x], "pchip")
+    assert isinstance(out, list) and len(out) == 2
+    alone = torchfill.fill(x, "pchip")
+    assert all(isinstance(o, torch.Tensor) and torch.equal(o, alone) for o in out)
+    ragged = torchfill.fill((G, G[:50], torchfill.MarkerSequence(G[:, :3], list("ABC"))), "linear")
+    assert isinstance(ragged, tuple) and [np.shape(r) for r in ragged[:2]] == [G.shape, (50, 5, 3)]
+    assert isinstance(ragged[2], torchfill.MarkerSequence) and ragged[2].n_markers == 3
+    np.testing.assert_array_equal(ragged[1], torchfill.fill(G[:50], "linear"))
+    filled, std = torchfill.fill([G, G[:60]], "pchip", mask=[mask, mask[:60]], return_std=True)
+    assert [f.shape for f in filled] == [G.shape, (60, 5, 3)]
+    assert [s.shape for s in std] == [(80, 5), (60, 5)]
+    with pytest.raises(ValueError, match=r"data\[1\]: .*shape"):
+        torchfill.fill([G, G[:, :, 0]], "pchip")
+    with pytest.raises(ValueError, match="2 masks"):
+        torchfill.fill([G, G], "pchip", mask=mask)
+
+
+def test_data_that_require_grad_are_refused():
+    X, mask, G = gappy_walk()
+    with pytest.raises(ValueError, match="require grad.*detach"):
+        torchfill.fill(torch.tensor(G, requires_grad=True), "pchip")
+
+
 def test_integer_array_is_accepted():
     X = np.arange(60).reshape(5, 4, 3)
     np.testing.assert_array_equal(torchfill.fill(X, method="linear"), X.astype(float))

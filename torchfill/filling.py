@@ -22,6 +22,7 @@ from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
 from .sequence import MarkerSequence
 from .solvers import available, get_solver, index_segments, place_from_training
+from .solvers.base import refuse_grad
 from .training import align_training
 from .unfilled import UnfilledWarning
 
@@ -48,7 +49,10 @@ def fill(data, method: str | None = None, *, options: FillOptions | None = None,
         D = 3 (markers, xyz) or 2 (image keypoints, xy); any D >= 1 for arrays and tensors. NaN
         marks a missing coordinate; a sample with any NaN coordinate counts as missing. A batch
         of arrays or tensors is filled sequence by sequence (``mask`` then ``(B, T, J)``) and
-        returned as a batch. float16 / bfloat16 tensors are computed in float32 and returned in
+        returned as a batch; a list (or tuple) of recordings is filled one by one, each alone
+        (lengths and markers may differ; ``mask`` then a list too), and returned as a list (tuple).
+        A tensor that requires grad is refused: no fill is differentiable with respect to its
+        input. float16 / bfloat16 tensors are computed in float32 and returned in
         their own dtype.
     method : str, optional
         A name from :func:`methods` (default: the best registered, see ``DEFAULT_METHODS``).
@@ -71,6 +75,8 @@ def fill(data, method: str | None = None, *, options: FillOptions | None = None,
         keywords = {**options.keywords(), **keywords}
         method = options.method if method is None else method
     opts = FillOptions.make(method, **keywords)
+    if _recordings(data):
+        return _fill_each(data, opts)
     prior = _previous_fill(data, opts.mask)
     if prior is not None:
         return _refill(data, prior, opts)
@@ -309,6 +315,30 @@ def _place_from_training(case: _Case) -> None:
         unfilled.warn_never(case.data, left)
 
 
+def _recordings(data) -> bool:
+    """Whether ``data`` is a list (or tuple) of recordings rather than one nested-list array."""
+    return isinstance(data, (list, tuple)) and len(data) > 0 and all(
+        isinstance(d, (MarkerSequence, np.ndarray, torch.Tensor)) for d in data)
+
+
+def _fill_each(data, o: FillOptions):
+    """A list or tuple of recordings: each filled alone (lengths and markers may differ), the
+    same kind of container back (with ``return_std``, one of fills and one of stds)."""
+    mask = o.mask
+    if mask is not None and (not isinstance(mask, (list, tuple)) or len(mask) != len(data)):
+        raise ValueError(f"a list of {len(data)} recordings expected a list of {len(data)} masks, "
+                         f"found {type(mask).__name__}")
+    done = []
+    for i, item in enumerate(data):
+        try:
+            done.append(fill(item, options=o.replace(mask=None if mask is None else mask[i])))
+        except ValueError as err:
+            raise ValueError(f"data[{i}]: {err}") from None
+    if isinstance(done[0], tuple):
+        return type(data)(d[0] for d in done), type(data)(d[1] for d in done)
+    return type(data)(done)
+
+
 def _fill_batch(data, o: FillOptions):
     """A batch ``(B, T, J, D)``: one fill per sequence, stacked (std too, with ``return_std``)."""
     tensor, mask = isinstance(data, torch.Tensor), o.mask
@@ -465,6 +495,7 @@ def _as_tensor(data) -> tuple[torch.Tensor, str]:
     if isinstance(data, MarkerSequence):
         X, kind = torch.from_numpy(np.array(data.points, dtype=np.float64)), "sequence"
     elif isinstance(data, torch.Tensor):
+        refuse_grad(data, "fill")
         X, kind = data.detach().clone(), "tensor"
         if not X.is_floating_point():
             X = X.to(torch.float64)
