@@ -175,6 +175,26 @@ def test_one_draw_where_its_held_out_gaps_are_many_distinct_windows(monkeypatch)
     assert count(apart) == 1 and count(shared) > 1
 
 
+def test_the_extra_draws_for_few_gaps_leave_tucker_tnn_out(monkeypatch):
+    """A recording with few gaps draws again until ``min_gaps`` held-out gaps are pooled; those
+    extra draws (beyond ``draws``) fit the cheap candidates only: ``tucker_tnn``, most of the
+    fits' time, is scored on the first ``draws`` draws."""
+    solver = get_solver("auto", candidates=["pchip", "tucker_tnn"])
+    stages, fit_all = [], Fits.fit_all
+
+    def spy(self, names, fit_missing, stage="fit", case=None):
+        stages.append((stage, list(names)))
+        return fit_all(self, names, fit_missing, stage, case)
+    monkeypatch.setattr(Fits, "fit_all", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        solver.fit(torch.from_numpy(_gappy()))
+    draws = [names for stage, names in stages if stage == "draw"]
+    assert len(draws) == MAX_DRAWS - 1 and "tucker_tnn" in draws[0]
+    assert all(names == ["pchip"] for names in draws[1:])
+    assert np.isfinite(solver.scores_["tucker_tnn"])
+
+
 def test_consensus_weighs_down_the_candidate_that_strays_on_its_gap():
     """On a gap where one of four weighted candidates strays from the others, its weight falls
     below theirs; a gap where they agree keeps its weights' ratios; a gap with fewer than three

@@ -7,7 +7,7 @@ import torch
 
 from ... import ops
 from ..holdout import mirrored_edge_holdout, shifted_gap_holdout
-from .candidates import PARTIAL, SESSION, Fits
+from .candidates import INTERIOR, PARTIAL, SESSION, Fits
 from .kinds import gap_index, sample_kinds
 
 Tensor = torch.Tensor
@@ -71,17 +71,18 @@ def first_scores(fills: Tensor, donor: Tensor, kinds: Tensor, Xt: Tensor, V: Ten
     return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
 
 
-def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torch.Generator
-         ) -> tuple[Tensor, Tensor, Tensor]:
+def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torch.Generator,
+         skip: tuple = ()) -> tuple[Tensor, Tensor, Tensor]:
     """Another hold-out draw, scored like the first (:func:`scored`; none when the draw
-    repeats ``V0``). The ``+session`` twins are not fitted again (see ``NOT_DRAWN``)."""
+    repeats ``V0``). The ``+session`` twins and the candidates in ``skip`` are not fitted again
+    (see ``NOT_DRAWN``)."""
     V = holdout(seen, generator)
     if bool((V == V0).all()):
         empty = torch.empty(0, dtype=torch.long, device=V.device)
         return torch.empty(len(names), 0, dtype=fits.M.dtype, device=V.device), empty, empty
     fit_missing = ~seen | V
     Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
-    run = [name for name in names if not name.endswith(SESSION)]
+    run = [name for name in names if not name.endswith(SESSION) and name not in skip]
     fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw")))
     outs = [fitted.get(name, NOT_DRAWN) for name in names]
     return scored(fits, names, outs, fit_missing, Xt, V)[0]
@@ -102,11 +103,13 @@ def pooled(first: tuple, fits: Fits, names: list[str], seen: Tensor, V: Tensor,
     (up to ``MAX_DRAWS``) they hold out ``min_gaps`` gaps: the squared errors (C, N), kinds (N,)
     and gap ids (N,; apart between the draws). One draw is enough where its held-out gaps
     take ``ENOUGH_WINDOWS`` distinct windows or more (:func:`windows`): many independent events,
-    not one window of many markers (``min_gaps=0``: exactly ``draws``)."""
+    not one window of many markers (``min_gaps=0``: exactly ``draws``). The extra draws for
+    ``min_gaps`` leave the ``INTERIOR`` candidates (``tucker_tnn``, the costliest) out."""
     pool = [first]
     enough = min_gaps > 0 and windows(V, first[2]) >= ENOUGH_WINDOWS
     while not enough and (len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
             int(p[2].unique().numel()) for p in pool) < min_gaps)):
-        pool.append(draw(fits, names, seen, V, generator))
+        skip = INTERIOR if len(pool) >= draws else ()            # an extra draw: cheap ones
+        pool.append(draw(fits, names, seen, V, generator, skip))
     return (torch.cat([p[0] for p in pool], dim=1), torch.cat([p[1] for p in pool]),
             torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pool)]))
