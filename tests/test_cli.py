@@ -153,6 +153,8 @@ def test_fill_dtype_reaches_fill(gappy_npz, tmp_path):
     (["-m", "svt", "-p", "max_iters=100"], "no hyperparameter 'max_iters'; did you mean "
                                               "'max_iter'?"),
     (["-p", "seeds=1"], "no hyperparameter 'seeds'; did you mean 'seed'?"),
+    (["-p", "max_iters=100"], "no hyperparameter 'max_iters'; 'max_iter' is a hyperparameter of "
+                              "svt, trnn, trnn_d2, tucker and"),
 ])
 def test_names_are_checked_before_any_work(verb, args, needle, gappy_npz, tmp_path, capsys):
     """A typo is named before the recording is read (nothing printed, nothing written)."""

@@ -34,9 +34,9 @@ def check_params(methods: list[str], params: dict, src: str = "") -> dict[str, d
         if key not in known:
             close = difflib.get_close_matches(key, known, n=1)
             owner = methods[0] if len(methods) == 1 else ", ".join(methods)
-            raise ValueError(f"{src}{owner}: no hyperparameter {key!r}"
-                             + (f"; did you mean {close[0]!r}?" if close else "")
-                             + " ('torchfill methods -v' lists them)")
+            hint = f"; did you mean {close[0]!r}?" if close else _elsewhere(key)
+            raise ValueError(f"{src}{owner}: no hyperparameter {key!r}{hint}"
+                             " ('torchfill methods -v' lists them)")
     per_method = {m: {k: v for k, v in params.items() if k in declared[m]} for m in methods}
     for method, own in per_method.items():
         try:
@@ -46,3 +46,19 @@ def check_params(methods: list[str], params: dict, src: str = "") -> dict[str, d
         except (ValueError, TypeError) as err:
             raise ValueError(f"{src}{_one_line(err)}") from None
     return per_method
+
+
+def _elsewhere(key: str) -> str:
+    """A close name that other methods take (e.g. ``max_iter``: the iterative ones), or ''."""
+    from torchfill.solvers import base
+
+    owners: dict[str, list[str]] = {}
+    for name in base.available():
+        for k in base._REGISTRY[name].declared_params():
+            owners.setdefault(k, []).append(name)
+    close = difflib.get_close_matches(key, list(owners), n=1)
+    if not close:
+        return ""
+    some = owners[close[0]]
+    return (f"; {close[0]!r} is a hyperparameter of {', '.join(some[:4])}"
+            + (f" and {len(some) - 4} more" if len(some) > 4 else ""))
