@@ -10,7 +10,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "torchfill"
 #: Layer of each top-level part, bottom first. Parts of one layer may import one another.
 LAYERS = [
     {"sequence", "gaps", "metrics", "ops", "runtime", "_catalog"},
-    {"io", "data", "projection", "segments", "training"},
+    {"io", "data", "projection", "segments", "segment_names", "training"},
     {"solvers"},
     {"windows", "constraints", "qc", "options", "unfilled"},
     {"filling", "batch", "progress"},
@@ -135,7 +135,7 @@ def test_no_import_cycle_between_modules():
 #: Longest module (lines) and function body (lines, docstring aside) in the package.
 MAX_MODULE, MAX_BODY = 700, 80
 #: Files still over those sizes, being split by their owners' work; remove an entry once it fits.
-OVERSIZED = {"data/synth.py", "io/c3d.py", "qc/report.py", "segments.py"}
+OVERSIZED = {"data/synth.py", "io/c3d.py", "qc/report.py"}
 
 
 def _body_lines(node) -> int:
