@@ -24,7 +24,10 @@ def _fill_options(args, src):
     params = _parse_params(args.param)
     _extrapolate(args)
     if args.method is not None:                 # a typo: say so before torch
-        args.method = method_names([args.method], src)[0]
+        named = method_names([args.method], src)
+        if not named:
+            raise ValueError(f"{src}-m expected a method name, found {args.method!r}")
+        args.method = named[0]
     import torchfill
     from torchfill.solvers import base
 
