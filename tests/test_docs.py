@@ -52,6 +52,7 @@ def shim(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.mark.slow                    # the pages' examples fill whole recordings
 @pytest.mark.parametrize("language, tags, body", list(_blocks()))
 def test_example_runs(language, tags, body, trial, shim, tmp_path):
     if "needs-data" in tags and not data_dir(ROOT).is_dir():

@@ -13,6 +13,7 @@ def _fuzz():
     return fuzz
 
 
+@pytest.mark.slow                    # benchmark-sized: a full fuzz round
 def test_seeded_fuzz_synthetic(tmp_path):
     result = _fuzz().run(240, seed=18, real=False, workdir=tmp_path)
     assert result["outcomes"].get("filled", 0) > 50        # the fill path is really exercised
@@ -20,6 +21,7 @@ def test_seeded_fuzz_synthetic(tmp_path):
     assert result["violations"] == []
 
 
+@pytest.mark.slow                    # reads the recordings
 def test_seeded_fuzz_real_recordings(tmp_path):
     fuzz = _fuzz()
     if not fuzz.data.folder().is_dir():

@@ -141,8 +141,9 @@ def test_orthogonal_parametrization_is_removed_after_fit():
 # Centring each coordinate on its observed mean (the base class) adds a rank-one term, so the
 # centred tensor has multilinear rank (R1+1, R2+1, min(R3+1, 3)), and a CP rank R+1.
 # The bounds below leave a margin over what was measured, and fail on a start that is not refined
-# (the HOSVD of the interpolated data, checked below). Adam is slower to reach them: marked slow.
-@pytest.mark.parametrize("optimizer", ["lbfgs", pytest.param("adam", marks=pytest.mark.slow)])
+# (the HOSVD of the interpolated data, checked below). Both optimizers take long: marked slow.
+@pytest.mark.slow                    # both optimizers: 25 s and more on two cores
+@pytest.mark.parametrize("optimizer", ["lbfgs", "adam"])
 def test_tucker_recovers_low_rank_tensor(optimizer):
     X, mask = tucker_data()
     kw = {"max_iter": 600} if optimizer == "lbfgs" else {"max_iter": 1000}

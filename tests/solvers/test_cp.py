@@ -100,6 +100,7 @@ def _noisy_low_rank():
     return X
 
 
+@pytest.mark.slow                    # benchmark-sized: two fits to convergence
 def test_smooth_prior_gives_smoother_time_factors():
     X = _noisy_low_rank()
     roughness = {}

@@ -72,6 +72,7 @@ def _smooth_low_rank(seed, shape=(60, 20, 3), rank=(4, 4, 3)):
     return ops.tucker_to_tensor(G, A)
 
 
+@pytest.mark.slow                    # benchmark-sized: full fits to convergence
 @pytest.mark.parametrize("method", ["tucker", "tucker_tnn"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_exact_recovery_low_multilinear_rank(method, seed):
@@ -159,6 +160,7 @@ def test_a_later_eps_schedule_far_behind_ends_after_its_trial(walk, monkeypatch,
     assert second == 10 if ends_at_trial else second > 10, second   # trial: eps_trial / T
 
 
+@pytest.mark.slow                    # two long windowed fills
 def test_the_next_window_runs_only_the_chosen_eps_schedule(walk, monkeypatch):
     X = walk(T=600, J=6)
     X[gaps.multi_gap(600, 6, n_markers=3, gap_length=30, max_gaps=2, seed=1)] = np.nan
