@@ -13,7 +13,7 @@ LAYERS = [
     {"io", "data", "projection", "segments", "segment_names", "training"},
     {"solvers"},
     {"windows", "constraints", "qc", "options", "unfilled"},
-    {"filling", "batch", "progress"},
+    {"filling", "kinds", "batch", "progress"},
     {"lightning", "cli", "__main__", "__init__"},
 ]
 

@@ -20,9 +20,9 @@ from .constraints import constrain, constrain_candidates, meet_kept
 from .options import DEFAULT_METHODS, OPTIONS_DOC, FillOptions, default_method, work_dtype
 from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
+from .kinds import as_kind, as_tensor, recordings
 from .sequence import MarkerSequence
 from .solvers import available, get_solver, index_segments, place_from_training
-from .solvers.base import refuse_grad
 from .training import align_training
 from .unfilled import UnfilledWarning
 
@@ -75,7 +75,7 @@ def fill(data, method: str | None = None, *, options: FillOptions | None = None,
         keywords = {**options.keywords(), **keywords}
         method = options.method if method is None else method
     opts = FillOptions.make(method, **keywords)
-    if _recordings(data):
+    if recordings(data):
         return _fill_each(data, opts)
     prior = _previous_fill(data, opts.mask)
     if prior is not None:
@@ -167,7 +167,7 @@ def _prepare(data, o: FillOptions) -> _Case:
     if training is not None and "training" not in solver.fit_data:
         raise ValueError(f"{method}: takes no training data; methods that do: "
                          f"{', '.join(m for m in methods() if 'training' in get_solver(m).fit_data)}")
-    points, kind = _as_tensor(data)
+    points, kind = as_tensor(data)
     missing = ~torch.isfinite(points).all(dim=2)
     if mask is not None:
         mask = torch.as_tensor(np.asarray(mask, dtype=bool), device=points.device)
@@ -284,7 +284,7 @@ def _finish(case: _Case, o: FillOptions):
                          f"window(s), {info['n_iter']} iterations)")
     if o.max_gap is not None:
         out = unfilled.unfill_long_gaps(out, case.given, case.missing, o.max_gap)
-    result = _as_kind(out, case.kind, data, info, case.missing)
+    result = as_kind(out, case.kind, data, info, case.missing)
     if not o.return_std:
         return result
     std = torch.where(torch.isfinite(out).all(dim=2) & case.missing, std, float("nan"))
@@ -313,12 +313,6 @@ def _place_from_training(case: _Case) -> None:
     left = case.never & ~torch.isfinite(out).all(dim=2).any(dim=0)
     if bool(left.any()):
         unfilled.warn_never(case.data, left)
-
-
-def _recordings(data) -> bool:
-    """Whether ``data`` is a list (or tuple) of recordings rather than one nested-list array."""
-    return isinstance(data, (list, tuple)) and len(data) > 0 and all(
-        isinstance(d, (MarkerSequence, np.ndarray, torch.Tensor)) for d in data)
 
 
 def _fill_each(data, o: FillOptions):
@@ -489,39 +483,3 @@ def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tenso
                         seed=seed)
     solver.fit(X, missing, post=post, **data)
     return solver.std_
-
-
-def _as_tensor(data) -> tuple[torch.Tensor, str]:
-    if isinstance(data, MarkerSequence):
-        X, kind = torch.from_numpy(np.array(data.points, dtype=np.float64)), "sequence"
-    elif isinstance(data, torch.Tensor):
-        refuse_grad(data, "fill")
-        X, kind = data.detach().clone(), "tensor"
-        if not X.is_floating_point():
-            X = X.to(torch.float64)
-    else:
-        arr = np.asarray(data)
-        if arr.dtype.kind not in "fiu":
-            raise ValueError(f"expected numeric marker data, found dtype {arr.dtype}")
-        X, kind = torch.from_numpy(np.array(arr, dtype=np.float64)), "array"
-    if X.ndim != 3 or X.shape[2] < 1:
-        raise ValueError(f"expected marker data of shape (T, J, D) (D = 3: xyz, 2: image "
-                         f"keypoints), found {tuple(X.shape)}")
-    if X.shape[0] < 2 or X.shape[1] < 1:
-        raise ValueError(f"expected at least 2 frames and 1 marker, found {tuple(X.shape)}")
-    if bool(torch.isinf(X).any()):
-        raise ValueError("marker data contains infinite values; use NaN for missing samples")
-    return X, kind
-
-
-def _as_kind(out: torch.Tensor, kind: str, data, info: dict, missing: torch.Tensor):
-    if kind == "tensor":
-        return out
-    points = out.cpu().numpy()
-    if kind == "array":
-        return points
-    seq = data.with_points(points)
-    seq.meta["filled"] = missing.cpu().numpy() & np.isfinite(points).all(axis=2)  # mask= too
-    seq.meta["fill_info"] = info
-    return seq
-
