@@ -108,6 +108,8 @@ def test_filling_knows_the_solver_contract_only():
     inner = sorted(m for m in _modules(PACKAGE / "filling.py")
                    if m.startswith("torchfill.solvers.") and m != "torchfill.solvers.base")
     assert not inner, f"filling.py imports solver modules: {inner}"
+    lines = len((PACKAGE / "filling.py").read_text().splitlines())
+    assert lines <= 500, f"filling.py has {lines} lines: the facade stays small (at most 500)"
 
 
 def test_no_import_cycle_between_modules():
