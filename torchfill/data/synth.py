@@ -115,24 +115,9 @@ def synthetic_walk(*, seconds: float = 8.0, rate: float = 120.0, seed: int = 0,
     pad = int(np.ceil(2.5 * rate))                       # two strides before and after
     t = np.arange(-pad, T + pad) / rate
     u = np.clip(t / seconds, 0.0, 1.0)                   # 0..1 along the recording
-
-    # Time course: stride time and length, phase (strides since start), pelvis arc length.
-    stride_time = 1.12 - 0.10 * _smoothstep(u)
-    stride_len = 1300.0 + 80.0 * _smoothstep(u)
-    phase = np.cumsum(1.0 / stride_time) / rate
-    phase -= phase[pad]
+    phase, s, heading, centre = _course(u, rate, pad)
     cyc = 2 * np.pi * phase
-    # Pelvis speed dips 5 % at mid-stance (phase 0.25 and 0.75).
-    speed = stride_len / stride_time * (1 - 0.05 * np.cos(2 * (cyc - np.pi / 2)))
-    s = np.cumsum(speed) / rate
-    heading = np.deg2rad(25.0) * _smoothstep((u - 0.35) / 0.4)
-    centre = np.column_stack([np.cumsum(speed * np.cos(heading)),
-                              np.cumsum(speed * np.sin(heading))]) / rate
-    centre -= centre[pad]
-
-    def along(values, s_query):   # a path quantity at arc length s_query
-        return np.interp(s_query, s, values)
-
+    feet = _footprints(rng, phase, s, centre, heading)
     R_heading = _rz(heading)
     yaw = np.deg2rad(-5.0) * np.cos(cyc)                 # left hip forward at left heel strike
     sway = 22.0 * np.sin(cyc - 2 * np.pi * 0.05)         # towards the stance foot (left first)
@@ -140,36 +125,9 @@ def synthetic_walk(*, seconds: float = 8.0, rate: float = 120.0, seed: int = 0,
     tilt = np.deg2rad(6.0 + 1.5 * np.cos(2 * cyc))
     R_pelvis = R_heading @ _rz(yaw) @ _rx(obliquity) @ _ry(tilt)
     lateral = np.column_stack([-np.sin(heading), np.cos(heading)])
-
-    # Feet: footprints (ankle at foot flat) placed where the pelvis is at mid-stance.
-    feet = {}
-    for side, sign, offset in (("L", 1.0, 0.0), ("R", -1.0, 0.5)):
-        phi = phase - offset
-        k_all = np.arange(int(np.floor(phi.min())) - 1, int(np.ceil(phi.max())) + 2)
-        s_mid = np.interp(k_all + 0.25, phi, s)
-        s_mid = s_mid + rng.normal(0.0, 12.0, size=k_all.size)            # step length jitter
-        width = _STEP_WIDTH / 2 + rng.normal(0.0, 8.0, size=k_all.size)  # step width jitter
-        prints = np.column_stack([along(centre[:, 0], s_mid), along(centre[:, 1], s_mid)])
-        psi = along(heading, s_mid)
-        prints += sign * width[:, None] * np.column_stack([-np.sin(psi), np.cos(psi)])
-        feet[side] = _foot_motion(phi, k_all, prints, psi + sign * _TOE_OUT, sign)
-
-    # Pelvis height: as high as both legs allow (knee >= ~10 deg), smoothed, never overstretched.
     hips = {side: _apply(R_pelvis, _HIP * np.array([1.0, sign, 1.0]))
             for side, sign in (("L", 1.0), ("R", -1.0))}
-    xy = centre + sway[:, None] * lateral
-    reach = 0.996 * (_THIGH_LEN + _SHANK_LEN)
-    allowed = []
-    for side in "LR":
-        ankle = feet[side][0]
-        dxy = np.linalg.norm(xy + hips[side][:, :2] - ankle[:, :2], axis=1)
-        rise = np.sqrt(np.maximum(reach ** 2 - dxy ** 2, 0.0))
-        allowed.append(ankle[:, 2] - hips[side][:, 2] + rise)
-    allowed = np.min(allowed, axis=0)
-    # Cap the mid-stance peak (knees stay flexed a little, as in loading response [1]).
-    height = np.minimum(allowed - 4.0, np.quantile(allowed, 0.6))
-    height = np.minimum(_gaussian_smooth(height, sigma=0.04 * rate), allowed)
-    pelvis = np.column_stack([xy, height])
+    pelvis = _pelvis_path(centre + sway[:, None] * lateral, hips, feet, rate)
 
     # Kinematic chain.
     pos = {}
@@ -184,26 +142,10 @@ def synthetic_walk(*, seconds: float = 8.0, rate: float = 120.0, seed: int = 0,
     R_skull = R_heading @ _ry(np.deg2rad(3.0) * np.sin(2 * cyc))       # small nod, gaze level
     for name, offset in _HEAD_MARKERS.items():
         pos[name] = neck + _apply(R_skull, np.array(offset, dtype=float))
-
     for side, sign, offset in (("L", 1.0, 0.0), ("R", -1.0, 0.5)):
+        frames = _limb_frames(side, sign, phase - offset, pelvis + hips[side], feet[side],
+                              R_heading, R_trunk, trunk0)
         m = np.array([1.0, sign, 1.0])
-        ankle, R_foot = feet[side]
-        hip = pelvis + hips[side]
-        forward = _apply(R_heading, np.array([1.0, 0.0, 0.0]))
-        knee = _knee(hip, ankle, forward)
-        R_thigh = _segment_frame(hip, knee, forward)
-        R_shank = _segment_frame(knee, ankle, forward)
-        swing = np.cos(2 * np.pi * (phase - offset - 0.5))              # with the opposite leg
-        abduction = np.full_like(t, sign * np.deg2rad(8.0))
-        R_upper = R_trunk @ _rx(abduction) @ _ry(-np.deg2rad(2.0 + 16.0 * swing))
-        R_fore = R_upper @ _ry(-np.deg2rad(20.0 + 10.0 * swing))
-        R_hand = R_fore @ _ry(np.full_like(t, -np.deg2rad(5.0)))
-        shoulder = trunk0 + _apply(R_trunk, _SHOULDER * m)
-        elbow = shoulder + _apply(R_upper, np.array([0.0, 0.0, -_UPPER_ARM_LEN]))
-        wrist = elbow + _apply(R_fore, np.array([0.0, 0.0, -_FOREARM_LEN]))
-        frames = {"thigh": (hip, R_thigh), "shank": (knee, R_shank), "foot": (ankle, R_foot),
-                  "upper_arm": (shoulder, R_upper), "forearm": (elbow, R_fore),
-                  "hand": (wrist, R_hand)}
         for segment, markers in _LIMB_MARKERS.items():
             origin, R = frames[segment]
             for name, offsets in markers.items():
@@ -215,6 +157,80 @@ def synthetic_walk(*, seconds: float = 8.0, rate: float = 120.0, seed: int = 0,
     return MarkerSequence(points=points, labels=list(LABELS), rate=float(rate), units="mm",
                           meta={"synthetic": f"synthetic_walk(seconds={seconds}, rate={rate}, "
                                              f"seed={seed}, noise={noise})"})
+
+
+def _course(u, rate, pad):
+    """Stride phase (strides since the start), pelvis arc length, heading and ground path."""
+    stride_time = 1.12 - 0.10 * _smoothstep(u)
+    stride_len = 1300.0 + 80.0 * _smoothstep(u)
+    phase = np.cumsum(1.0 / stride_time) / rate
+    phase -= phase[pad]
+    cyc = 2 * np.pi * phase
+    # Pelvis speed dips 5 % at mid-stance (phase 0.25 and 0.75).
+    speed = stride_len / stride_time * (1 - 0.05 * np.cos(2 * (cyc - np.pi / 2)))
+    s = np.cumsum(speed) / rate
+    heading = np.deg2rad(25.0) * _smoothstep((u - 0.35) / 0.4)
+    centre = np.column_stack([np.cumsum(speed * np.cos(heading)),
+                              np.cumsum(speed * np.sin(heading))]) / rate
+    centre -= centre[pad]
+    return phase, s, heading, centre
+
+
+def _footprints(rng, phase, s, centre, heading) -> dict:
+    """Each foot's ankle and orientation: footprints (ankle at foot flat) placed where the
+    pelvis is at mid-stance, with step length and width jitter."""
+    def along(values, s_query):   # a path quantity at arc length s_query
+        return np.interp(s_query, s, values)
+
+    feet = {}
+    for side, sign, offset in (("L", 1.0, 0.0), ("R", -1.0, 0.5)):
+        phi = phase - offset
+        k_all = np.arange(int(np.floor(phi.min())) - 1, int(np.ceil(phi.max())) + 2)
+        s_mid = np.interp(k_all + 0.25, phi, s)
+        s_mid = s_mid + rng.normal(0.0, 12.0, size=k_all.size)            # step length jitter
+        width = _STEP_WIDTH / 2 + rng.normal(0.0, 8.0, size=k_all.size)  # step width jitter
+        prints = np.column_stack([along(centre[:, 0], s_mid), along(centre[:, 1], s_mid)])
+        psi = along(heading, s_mid)
+        prints += sign * width[:, None] * np.column_stack([-np.sin(psi), np.cos(psi)])
+        feet[side] = _foot_motion(phi, k_all, prints, psi + sign * _TOE_OUT, sign)
+    return feet
+
+
+def _pelvis_path(xy, hips, feet, rate):
+    """Pelvis position: as high as both legs allow (knee >= ~10 deg), smoothed, never
+    overstretched; the mid-stance peak capped (knees stay flexed a little, as in loading
+    response [1])."""
+    reach = 0.996 * (_THIGH_LEN + _SHANK_LEN)
+    allowed = []
+    for side in "LR":
+        ankle = feet[side][0]
+        dxy = np.linalg.norm(xy + hips[side][:, :2] - ankle[:, :2], axis=1)
+        rise = np.sqrt(np.maximum(reach ** 2 - dxy ** 2, 0.0))
+        allowed.append(ankle[:, 2] - hips[side][:, 2] + rise)
+    allowed = np.min(allowed, axis=0)
+    height = np.minimum(allowed - 4.0, np.quantile(allowed, 0.6))
+    height = np.minimum(_gaussian_smooth(height, sigma=0.04 * rate), allowed)
+    return np.column_stack([xy, height])
+
+
+def _limb_frames(side, sign, phi, hip, foot, R_heading, R_trunk, trunk0) -> dict:
+    """Origin and orientation of each limb segment of one side, at stride phase ``phi``."""
+    m = np.array([1.0, sign, 1.0])
+    ankle, R_foot = foot
+    forward = _apply(R_heading, np.array([1.0, 0.0, 0.0]))
+    knee = _knee(hip, ankle, forward)
+    R_thigh = _segment_frame(hip, knee, forward)
+    R_shank = _segment_frame(knee, ankle, forward)
+    swing = np.cos(2 * np.pi * (phi - 0.5))                           # with the opposite leg
+    abduction = np.full_like(phi, sign * np.deg2rad(8.0))
+    R_upper = R_trunk @ _rx(abduction) @ _ry(-np.deg2rad(2.0 + 16.0 * swing))
+    R_fore = R_upper @ _ry(-np.deg2rad(20.0 + 10.0 * swing))
+    R_hand = R_fore @ _ry(np.full_like(phi, -np.deg2rad(5.0)))
+    shoulder = trunk0 + _apply(R_trunk, _SHOULDER * m)
+    elbow = shoulder + _apply(R_upper, np.array([0.0, 0.0, -_UPPER_ARM_LEN]))
+    wrist = elbow + _apply(R_fore, np.array([0.0, 0.0, -_FOREARM_LEN]))
+    return {"thigh": (hip, R_thigh), "shank": (knee, R_shank), "foot": (ankle, R_foot),
+            "upper_arm": (shoulder, R_upper), "forearm": (elbow, R_fore), "hand": (wrist, R_hand)}
 
 
 def _foot_motion(phi, k_all, prints, psi, sign):

@@ -361,6 +361,14 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
                          f"<figcaption><b>{esc(r['marker'])}</b> frames {r['first_frame']}-"
                          f"{r['last_frame']}: <b>{r['verdict']}</b> — "
                          f"{esc('; '.join(r['reasons']))}</figcaption>{svg}</figure>")
+    parts.append(_gap_table_html(rows, u))
+    parts.append(f"</tbody></table><script>{_SORT_JS}</script></body></html>")
+    return "\n".join(parts)
+
+
+def _gap_table_html(rows: list[dict], u: str) -> str:
+    """The sortable table of every gap (opening tags and rows; the caller closes it)."""
+    esc = html.escape
     cols = [("marker", "marker", "l"), ("first_frame", "first frame", ""),
             ("last_frame", "last frame", ""), ("frames", "frames", ""), ("kind", "kind", "l"),
             ("est_rmse", f"est. RMS error ({u})", ""), ("max_step", f"max step ({u})", ""),
@@ -368,10 +376,10 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
             ("rigid_dev", f"rigid deviation ({u})", ""), ("support", "spatial support (%)", ""),
             ("unfilled", "unfilled frames", ""), ("verdict", "verdict", "l v"),
             ("reasons", "reasons", "l")]
-    parts.append("<h2>All gaps</h2><p>Click a column head to sort.</p>"
+    parts = ["<h2>All gaps</h2><p>Click a column head to sort.</p>"
                  "<table class='sortable'><thead><tr>"
                  + "".join(f"<th class='{cls}'>{head}</th>" for _, head, cls in cols)
-                 + "</tr></thead><tbody>")
+                 + "</tr></thead><tbody>"]
     for r in sorted(rows, key=lambda r: (_ORDER[r["verdict"]], r["j"], r["start"])):
         cells = []
         for key, _, cls in cols:
@@ -389,5 +397,4 @@ def html_report(points, filled, rows: list[dict], *, title: str, rate=None, unit
             cells.append(f"<td class='{cls}' data-v='{esc(str(sort))}'>"
                          f"{esc(v if isinstance(v, str) else _fmt(v, 4))}</td>")
         parts.append(f"<tr class='{r['verdict']}'>{''.join(cells)}</tr>")
-    parts.append(f"</tbody></table><script>{_SORT_JS}</script></body></html>")
     return "\n".join(parts)
