@@ -14,6 +14,7 @@ import torchfill
 from torchfill import metrics
 from torchfill.constraints import RiskyFillWarning, constrain
 from torchfill.solvers import get_solver
+from benchmarks.suites.qc import PLAUSIBLE_FILES
 
 
 def _walk(T=200, J=6, seed=0):
@@ -304,15 +305,7 @@ def test_walking_hybrid_default_fill_edges_and_every_missing_sample(recording):
 
 
 #: The recordings of the data folder with real gaps (PROVENANCE.md).
-REAL_GAPPED = [
-    "c3dorg_s00_codamotion_gaitwands_20150204.c3d", "c3dorg_s01_eb015pr.c3d",
-    "c3dorg_s02_pc_real.c3d", "c3dorg_s04_sub_labels.c3d", "c3dorg_s26_capture0002.c3d",
-    "c3dorg_s26_walking_hybrid_1_1.c3d", "c3dorg_s26_walking_hybrid_1_2.c3d",
-    "c3dorg_s26_walking_hybrid_1_3.c3d", "c3dorg_s26_walking_hybrid_1_4.c3d",
-    "c3dorg_s26_walking_hybrid_1_5.c3d", "c3dorg_s26_walking_hybrid_2.c3d",
-    "c3dorg_s28_type1.c3d", "ktk_basket_sprint.c3d", "ktk_c3d_sample_bts.c3d",
-    "ktk_racing_full.c3d", "mogapfill_gait-raw.csv", "numediart_03_rolling.c3d",
-]
+REAL_GAPPED = PLAUSIBLE_FILES
 
 
 @pytest.mark.slow

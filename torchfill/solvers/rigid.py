@@ -108,6 +108,18 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
     return out, ok
 
 
+def _lag_pairs(refs: np.ndarray, lag: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Reference frames ``src`` and the first ``dst`` at least ``lag`` frames later, at most
+    ``HOLDOUT_FRAMES`` of them spread evenly; None with fewer than three."""
+    later = np.searchsorted(refs, refs + lag)
+    ok = later < refs.size
+    if ok.sum() < 3:
+        return None
+    src, dst = refs[ok], refs[later[ok]]
+    pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
+                     .round().astype(int))
+    return src[pick], dst[pick]
+
 def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
                    ) -> tuple[np.ndarray, np.ndarray]:
     """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
@@ -117,16 +129,12 @@ def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
     srcs, dsts, tags = [], [], []
     last = int(np.searchsorted(HOLDOUT_LAGS, reach))
     for n, lag in enumerate(HOLDOUT_LAGS[:last + 1]):
-        later = np.searchsorted(refs, refs + lag)
-        ok = later < refs.size
-        if ok.sum() < 3:
+        pairs = _lag_pairs(refs, lag)
+        if pairs is None:
             break
-        src, dst = refs[ok], refs[later[ok]]
-        pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
-                         .round().astype(int))
-        srcs.append(src[pick])
-        dsts.append(dst[pick])
-        tags.append(np.full(pick.size, n))
+        srcs.append(pairs[0])
+        dsts.append(pairs[1])
+        tags.append(np.full(pairs[0].size, n))
     if not srcs:
         return np.zeros(0), np.zeros(0)
     src, dst, tag = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(tags)
@@ -285,14 +293,10 @@ def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
         sel = codes == code
         lags, errs = [], []
         for lag in HOLDOUT_LAGS:
-            later = np.searchsorted(refs, refs + lag)
-            ok = later < refs.size
-            if ok.sum() < 3:
+            pairs = _lag_pairs(refs, lag)
+            if pairs is None:
                 break
-            src, dst = refs[ok], refs[later[ok]]
-            pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
-                             .round().astype(int))
-            src, dst = src[pick], dst[pick]
+            src, dst = pairs
             P, Q = X[src][:, pair], X[dst][:, pair]
             R = _turn(P[:, 1] - P[:, 0], Q[:, 1] - Q[:, 0])
             x = np.einsum("ncd,nd->nc", R, X[src, j] - P.mean(axis=1)) + Q.mean(axis=1)
