@@ -171,6 +171,30 @@ def test_segment_fill_gives_the_same_bits_on_one_thread_and_two():
     assert set(np.unique(results[0][2][250:, 4])) <= {0, 1} and (results[0][2][250:, 4] >= 0).all()
 
 
+def test_segment_fill_a_block_of_rows_at_a_time_gives_the_same_bits(monkeypatch):
+    """The batched consistency and Kabsch work of all markers goes a block of rows at a time (a
+    long recording's peak memory does not grow with the whole batch): blocks of a few rows, cut
+    across the markers' requests, give the bits of one block over all rows."""
+    from torchfill.ops import rotation
+    from torchfill.solvers import rigid_batch
+    X = _segment_motion()
+    X[100:160, 0] = np.nan
+    X[250:, 4] = np.nan
+    X[40:90, 3] = np.nan
+    X[120:130, 1] = np.nan
+    segments = {"a": [0, 1, 2, 3, 4], "b": [3, 4, 5, 6, 7]}
+    monkeypatch.setattr(rotation, "HORN_BLOCK", 4)        # the same rotations' neighbours
+    results = []
+    for rows, kabsch_rows in ((1 << 40, 1 << 40), (5, 8)):
+        monkeypatch.setattr(rigid_batch, "ROWS", rows)
+        monkeypatch.setattr(rigid_batch, "KABSCH_ROWS", kabsch_rows)
+        rigid.clear_cache()
+        results.append(segment_fill(X, None, segments, bridge=True))
+    for a, b in zip(*results):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.isfinite(results[0][0][100:160, 0]).all()
+
+
 def test_one_mate_is_left_to_other_models_and_the_method_says_which_markers():
     truth = _segment_motion()
     X = truth.copy()

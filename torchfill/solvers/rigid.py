@@ -98,6 +98,7 @@ def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray
         C = Cp * Cq
         W = W * C
         posed = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates
+        del Cp, Cq, C                 # not held while the other tasks' fits are computed
         if firm and not posed.all():  # a mate off its place leaves too few to fix the pose
             keep = np.flatnonzero(ok)[posed]
             ok = np.zeros_like(ok)
@@ -176,13 +177,13 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     with ``j``."""
     T = X.shape[0]
     use = seen[:, M] & (w > 0)
-    nvis = use.sum(axis=1)
-    todo = np.flatnonzero(~seen[:, j] & (nvis >= min_mates))
-    est = np.full((T, 3), np.nan)
-    err = np.full(T, np.nan)
-    refs = np.flatnonzero(seen[:, j] & (nvis >= min_mates))
+    enough = use.sum(axis=1) >= min_mates
+    todo = np.flatnonzero(~seen[:, j] & enough)
+    refs = np.flatnonzero(seen[:, j] & enough)
+    use = use[todo]                 # while the tasks wait on each other: no (T, ...) arrays held
+    del enough
     if refs.size == 0:
-        return est, err, np.zeros(T, dtype=bool)
+        return np.full((T, 3), np.nan), np.full(T, np.nan), np.zeros(T, dtype=bool)
     lags = errs = np.zeros(0)
     if todo.size:
         e, good, reach = yield from _three_mates(X, seen, j, M, w, todo, refs, use, min_mates,
@@ -193,6 +194,9 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
             r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
         else:                             # too few observed frames to measure
             r = np.full(todo.size, np.nan)
+    est = np.full((T, 3), np.nan)
+    err = np.full(T, np.nan)
+    if todo.size:
         est[todo[good]] = e[good]
         err[todo[good]] = r[good]
     bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
@@ -203,11 +207,12 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
 def _three_mates(X, seen, j, M, w, todo, refs, use, min_mates, shape):
     """:func:`_estimate_at` of the ``todo`` frames from ``refs``; a frame whose nearest references
     share too few mates with it from the nearest frames where all of its observed mates (then
-    all but the least rigid, ...) were seen with ``j``."""
+    all but the least rigid, ...) were seen with ``j`` (``use``: those mates, one row per
+    ``todo`` frame)."""
     e, good, reach = yield from _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
-        codes = use[todo[left]] @ (1 << np.arange(M.size, dtype=np.int64))
+        codes = use[left] @ (1 << np.arange(M.size, dtype=np.int64))
         rank = np.argsort(-w, kind="stable")             # most rigid mates first
         for code in np.unique(codes):
             sel = left[codes == code]
@@ -491,24 +496,33 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
             if (w > 0).sum() >= min_mates:
                 tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
 
-    estimates = _drive([_segment_estimate(X, seen, j, M, w, min_mates, shape)
+    estimates = _drive([_estimated_only(_segment_estimate(X, seen, j, M, w, min_mates, shape))
                         for _, j, M, w, shape in tasks])
     extra = np.array([s.startswith(_segments.COMPLETION) for s in members] + [False])
-    for (si, j, *_), (e, r, b) in zip(tasks, estimates):    # in order: the same choice
+    for (si, j, *_), (at, e, r, b) in zip(tasks, estimates):    # in order: the same choice
         per_coord = r / np.sqrt(3.0)
         rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
-        mine = np.where(seg_of[:, j] >= 0, np.nan_to_num(std[:, j], nan=np.finfo(float).max),
-                        np.inf)
-        fin = np.isfinite(e).all(axis=1)
-        was = bridged[:, j]              # a segment's fit from three mates before any bridge
-        better = fin & ((seg_of[:, j] < 0) | ((b == was) & (rank < mine)) | (was & ~b))
+        now = seg_of[at, j]
+        mine = np.where(now >= 0, np.nan_to_num(std[at, j], nan=np.finfo(float).max), np.inf)
+        was = bridged[at, j]             # a segment's fit from three mates before any bridge
+        better = (now < 0) | ((b == was) & (rank < mine)) | (was & ~b)
         if extra[si]:                    # a completion: where no other segment fills
-            better &= (seg_of[:, j] < 0) | extra[seg_of[:, j]] | (was & ~b)
-        est[better, j] = e[better]
-        std[better, j] = per_coord[better]
-        seg_of[better, j] = si
-        bridged[better, j] = b[better]
+            better &= (now < 0) | extra[now] | (was & ~b)
+        at, e, per_coord, b = at[better], e[better], per_coord[better], b[better]
+        est[at, j] = e
+        std[at, j] = per_coord
+        seg_of[at, j] = si
+        bridged[at, j] = b
     return est, std, seg_of, bridged
+
+
+def _estimated_only(task):
+    """The task :func:`_segment_estimate` returning its estimates at the frames it estimates only:
+    ``(frames, estimate, error, bridged)``, so that the finished tasks of a long recording hold no
+    ``(T, 3)`` array each while the others run."""
+    e, r, b = yield from task
+    at = np.flatnonzero(np.isfinite(e).all(axis=1))
+    return at, e[at], r[at], b[at]
 
 
 def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:

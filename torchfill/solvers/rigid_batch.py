@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from ..metrics import norm_last
-from ..ops.rotation import kabsch
+from ..ops.rotation import HORN_BLOCK, kabsch
 
 #: A mate is trusted in a frame while its distances to the other mates stay within this many
 #: times their observed band (twice the robust spread plus the floor); see :func:`_consistency`.
@@ -85,28 +85,45 @@ def _batched(fn, jobs: list) -> list:
 
 #: Rows of one batched consistency computation (its (n, k, k) arrays stay small).
 ROWS = 1 << 14
+#: Rows of one :func:`kabsch` call: its temporaries stay a few times one block's points, whatever
+#: the recording's length; a multiple of ``HORN_BLOCK``, so that each rotation is solved among
+#: the same neighbours as in one call over all rows (the same bits).
+KABSCH_ROWS = 2 * HORN_BLOCK
 
 
 def _consistency_rows(jobs: list) -> list[np.ndarray]:
     """:func:`_consistency` of the rows of ``jobs`` (one ``k``: ``(P, use, D0, band, back)``),
     each job's shape per row, expanded back to every row of its request (``back``)."""
-    P = np.concatenate([j[0] for j in jobs])
-    use = np.concatenate([j[1] for j in jobs])
     reps = [j[0].shape[0] for j in jobs]
-    D0 = np.repeat(np.stack([j[2] for j in jobs]), reps, axis=0)
-    band = np.repeat(np.stack([j[3] for j in jobs]), reps, axis=0)
-    C = np.concatenate([_consistency(P[a:a + ROWS], use[a:a + ROWS], D0[a:a + ROWS],
-                                     band[a:a + ROWS]) for a in range(0, P.shape[0], ROWS)])
+    D0, band = np.stack([j[2] for j in jobs]), np.stack([j[3] for j in jobs])
+    job = np.repeat(np.arange(len(jobs)), reps)     # each row's shape, taken a block at a time
+    C = np.concatenate([_consistency(P, use, D0[job[a:a + ROWS]], band[job[a:a + ROWS]])
+                        for a, (P, use) in zip(range(0, job.size, ROWS),
+                                               _blocks([j[:2] for j in jobs], ROWS))])
     parts = np.split(C, np.cumsum(reps)[:-1])
     return [c if j[4] is None else c[j[4]] for c, j in zip(parts, jobs)]
 
 
 def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`kabsch` of the requests ``jobs`` (one ``k``: ``(P, Q, W)``) in one batch."""
-    P, Q, W = (torch.from_numpy(np.concatenate([j[i] for j in jobs])) for i in range(3))
-    R, t = kabsch(P, Q, W)
+    R, t = (torch.cat(x) for x in zip(*[kabsch(*map(torch.from_numpy, block))
+                                        for block in _blocks(jobs, KABSCH_ROWS)]))
     cut = np.cumsum([j[0].shape[0] for j in jobs])[:-1]
     return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
+
+
+def _blocks(jobs: list, size: int):
+    """The concatenations over ``jobs`` (tuples of arrays with one row per job's item) of each
+    tuple member, ``size`` rows at a time (at least one block, perhaps empty), without building
+    the whole concatenation."""
+    ends = np.cumsum([j[0].shape[0] for j in jobs])
+    starts = ends - [j[0].shape[0] for j in jobs]
+    for a in range(0, max(int(ends[-1]), 1), size):
+        b = a + size
+        inside = [i for i in range(np.searchsorted(ends, a, side="right"),
+                                   np.searchsorted(starts, b)) if ends[i] > starts[i]] or [0]
+        yield tuple(np.concatenate([jobs[i][m][max(a - starts[i], 0):b - starts[i]]
+                                    for i in inside]) for m in range(len(jobs[0])))
 
 
 def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
