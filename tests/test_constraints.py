@@ -143,14 +143,14 @@ def test_blocks_of_pairs_and_frames_do_not_change_the_result(recording, monkeypa
     fit in memory: pair blocks give the same bits as one block, frame blocks the same up to the
     rounding of a matrix product with fewer rows (frames are independent there)."""
     from torchfill import constraints
-    from torchfill.solvers import rigid
+    from torchfill.solvers import rigid_pairs
 
     seq = torchfill.read(recording("c3dorg_s26_walking_hybrid_1_5.c3d"))
     F = torchfill.fill(seq, "linear", constraints=False).points
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         whole, _ = constrain(F, seq.mask)
-        monkeypatch.setattr(rigid, "PAIR_BLOCK", 1)
+        monkeypatch.setattr(rigid_pairs, "PAIR_BLOCK", 1)
         assert np.array_equal(constrain(F, seq.mask)[0], whole, equal_nan=True)
         monkeypatch.setattr(constraints, "SOFT_BLOCK", 1)
         blocked = constrain(F, seq.mask)[0]
