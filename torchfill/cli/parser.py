@@ -86,10 +86,7 @@ def _add_fill(sub) -> None:
                    help="which markers move together: a YAML file as 'torchfill info IN "
                         "--segments' prints, 'names' (marker-set tables) or 'data' (found in the "
                         "recording); default: the tables when the labels fit, else the data")
-    p.add_argument("-q", "--quiet", action="count", default=0,
-                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
-    _add_threads(p)
-    _add_pose_options(p)
+    _add_run_options(p)
     p.set_defaults(run=_cmd_fill)
 
 
@@ -136,10 +133,7 @@ def _add_evaluate(sub) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="hyperparameter for a single method")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("-q", "--quiet", action="count", default=0,
-                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
-    _add_threads(p)
-    _add_pose_options(p)
+    _add_run_options(p)
     p.set_defaults(run=_cmd_evaluate)
 
 
@@ -174,6 +168,14 @@ def _add_experiment(sub) -> None:
     p.add_argument("--ray", metavar="ADDRESS", help="run the cases as Ray tasks: 'auto', 'local' "
                    "or ray://HOST:PORT (every node needs the recordings at the same path)")
     p.set_defaults(run=_cmd_experiment)
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """-q, threads and pose options: shared by the verbs that fill."""
+    p.add_argument("-q", "--quiet", action="count", default=0,
+                   help="no progress and no summary: only warnings and errors (-qq: only errors)")
+    _add_threads(p)
+    _add_pose_options(p)
 
 
 def _add_threads(p: argparse.ArgumentParser) -> None:

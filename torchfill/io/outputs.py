@@ -239,12 +239,7 @@ class Outputs:
             for w in caught:                  # the writer named the private path: name the target
                 warnings.warn_explicit(_renamed(w.message, tmp, path), w.category, w.filename,
                                        w.lineno)
-            fd = os.open(tmp, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-            os.chmod(tmp, _mode_for(landing))
+            _settle(tmp, landing)
             companions = self._companions(holder, tmp, path, me.what)
         except BaseException as err:
             shutil.rmtree(holder, ignore_errors=True)
@@ -275,12 +270,7 @@ class Outputs:
             landing = self._check(target, f"record of the {what}", replace_input=False,
                                   folder=False, hint="",
                                   me=next(w for w in self._writes if w.path == target))
-            fd = os.open(extra, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-            os.chmod(extra, _mode_for(landing))
+            _settle(extra, landing)
             staged.append(_Staged(target, landing, None, extra))
         return staged
 
@@ -511,6 +501,16 @@ def _stamp(path: Path) -> tuple:
         return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
     except OSError:
         return ()
+
+
+def _settle(staged: Path, landing) -> None:
+    """A staged file synced to disk and given the mode of the file it will replace."""
+    fd = os.open(staged, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.chmod(staged, _mode_for(landing))
 
 
 def _mode_for(landing: str) -> int:
