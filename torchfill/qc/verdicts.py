@@ -32,8 +32,8 @@ per-coordinate std of ``fill(..., return_std=True)``). The tests, each a pure fu
 
 Thresholds in mm are converted to the file's units (m, cm, mm); for image keypoints (px) by the
 body's size: the recording's median pairwise keypoint distance against ``BODY_SCALE_MM``. They
-are constants calibrated on gaps with known truth (``scripts/calibrate_qc.py``: the tennis file
-with its clean twin and real gap masks laid onto complete recordings), never on the gaps judged.
+are constants calibrated on gaps with known truth (``python -m benchmarks qc``), never on the
+gaps judged; how: experiments/results/qc.md.
 """
 from __future__ import annotations
 
@@ -48,16 +48,7 @@ from ..constraints import (END_STEP_FACTOR, SPATIAL_MIN, STEP_FACTOR, STEP_PERCE
 from ..sequence import UNITS_PER_MM as _PER_MM
 from ..solvers.rigid import index_segments, rigid_pairs
 
-# The constants below were chosen with scripts/calibrate_qc.py on its own cases (the tennis file
-# and 12 real masks laid onto complete recordings: 1 189 gaps, 1 023 of them filled) and checked
-# on the held-out real-gap-pattern suite, the default fill (auto) with ``return_std=True``. Of
-# 5 / 6 / 7 / 8 / 9 / 10 mm and 0 / 0.5 / 0.75 / 0.9 / 1 / 1.25 x the median estimate, 8 mm and
-# 1 x (with the short-gap test below) flagged 90.8 % of the gaps with large true errors and
-# 14.0 % of those below 5 mm (the targets: >= 90 % and <= 15 %). With the default's constraints
-# the step, rigid and volume tests rarely fire (3 % of the large-error gaps); they catch what the
-# estimate cannot see (a fill from another method or without constraints). With ``AGREE_MM`` and
-# the current default's fills: 98.8 % / 10.8 % on the calibration cases, 93.7 % / 9.6 % on the
-# held-out suite (docs/real-gaps.md, "How right the verdict is").
+# How these constants were chosen and what they give: experiments/results/qc.md.
 #: Estimated RMS error (mm) above which a gap is ``check``, when it is also above ``EST_RELATIVE``
 #: x the recording's median gap estimate (a recording whose every gap is hard is judged on its
 #: own scale).
@@ -75,24 +66,17 @@ STEP_ROUNDING = 1e-4
 RIGID_CHECK = 5.0
 RIGID_REJECT = 15.0
 #: Interior gaps up to this many seconds are compared with the interpolation across them (PCHIP
-#: through the observed samples next to them): on such short gaps it errs by 0.1 mm (median;
-#: 99th percentile 1-7 mm on the calibration cases), so a fill that departs from it by more than
-#: ``DISAGREE_MM`` is ``check``. On the calibration cases (0.025 / 0.05 / 0.1 / 0.2 s, 5 / 8 /
-#: 10 mm) 0.1 s and 8 mm caught 8 of 9 short gaps with large errors, 2 of them missed by the
-#: estimate, and flagged 2 of 394 short gaps under 5 mm.
+#: through the observed samples next to them); a fill that departs from it by more than
+#: ``DISAGREE_MM`` is ``check`` (experiments/results/qc.md).
 SHORT_SECONDS = 0.1
 DISAGREE_MM = 8.0
 #: A short interior gap whose fill stays within this RMS distance (mm) of the interpolation across
-#: it is not flagged on its estimated error alone: two independent fills agree, and the
-#: interpolation errs by 0.1 mm (median) on such gaps. On the calibration cases (the default's
-#: fills; 695 gaps under 5 mm, 179 large-error gaps) 1 / 2 / 3 / 4 mm all kept 98.9 % of the
-#: large-error gaps flagged and flagged 10.9 / 9.9 / 9.1 / 8.2 % of the gaps under 5 mm (15.3 %
-#: without the rule: an estimate above 8 mm on a gap of 1-10 frames the fill got right); 2 mm
-#: stays within the interpolation's own error on such gaps.
+#: it is not flagged on its estimated error alone: two independent fills agree
+#: (experiments/results/qc.md).
 AGREE_MM = 2.0
 #: Seconds of time-only extrapolation at a trial end above which a gap is ``check`` (within the
-#: default 0.25 s limit such gaps are listed with the reason but judged on their estimate:
-#: flagging them all flagged 11 % more of the calibration gaps below 5 mm for 5 % more recall).
+#: default 0.25 s limit such gaps are listed with the reason but judged on their estimate;
+#: experiments/results/qc.md).
 EXTRAPOLATED_SECONDS = 0.25
 #: Median pairwise marker distance of an adult full-body marker set (mm; HDM05, CMU and OpenSim
 #: recordings: 630-690): converts mm thresholds to pixels for image keypoints.
