@@ -37,7 +37,8 @@ def available(name: str) -> bool:
 
 
 def run(name: str, seq: torchfill.MarkerSequence, seed: int = 0, **kwargs) -> Filled:
-    """Fill ``seq`` with method ``name``, timed; a method's ValueError becomes ``error``."""
+    """Fill ``seq`` with method ``name``, timed; a method's ValueError (a peer's any exception)
+    becomes ``error``."""
     std = None
     with measure() as t, warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -50,7 +51,9 @@ def run(name: str, seq: torchfill.MarkerSequence, seed: int = 0, **kwargs) -> Fi
                 F = out.points
             else:
                 F = torchfill.fill(seq, method=name, extrapolate=None, **kwargs).points
-        except ValueError as err:
+        except Exception as err:                        # noqa: BLE001 - a peer's own failure
+            if not (is_peer(name) or isinstance(err, ValueError)):
+                raise
             return Filled(np.full_like(seq.points, np.nan), None, Timing(), str(err))
     return Filled(np.asarray(F, dtype=np.float64), std, t)
 

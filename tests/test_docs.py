@@ -147,3 +147,27 @@ def test_links_from_code_comments_into_docs_and_results_resolve():
             elif anchor and anchor not in _anchors(dest):
                 broken.append(f"{path.relative_to(ROOT)}: {m.group(1)}")
     assert not broken, broken
+
+
+SCRIPT = re.compile(r"(?<![\w./-])((?:[\w-]+/)*[A-Za-z_]\w*\.(?:py|sh))\b")
+#: Files of other projects a docstring names (MoGapFill's module, fetched by the user).
+OTHER_PROJECTS = {"smooth.py"}
+
+
+def test_code_names_only_scripts_and_modules_that_exist():
+    """A comment or docstring that names a program (``scripts/x.py``, ``bench_x.py``) names one
+    in the repository: a path from the root or the package, or the name of a tracked file;
+    programs that were removed are named by the suite that replaced them
+    (``python -m benchmarks SUITE``) or a page of docs/."""
+    names = {p.name for p in ROOT.rglob("*") if ".venv" not in p.parts and ".git" not in p.parts}
+    broken = []
+    for path in sorted([*(ROOT / "torchfill").rglob("*.py"), *(ROOT / "benchmarks").rglob("*.py")]):
+        for m in SCRIPT.finditer(path.read_text(encoding="utf-8")):
+            name = m.group(1)
+            if "/" in name:
+                ok = (ROOT / name).exists() or (ROOT / "torchfill" / name).exists()
+            else:
+                ok = name in names or name in OTHER_PROJECTS
+            if not ok:
+                broken.append(f"{path.relative_to(ROOT)}: {name}")
+    assert not broken, broken

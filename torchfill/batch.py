@@ -208,8 +208,8 @@ def fill_file(job: Job) -> dict:
 #: ``--session`` inputs up to this many frames stay whole in the pool: ``auto``'s cross-trial
 #: hold-out lays a trial's gap pattern on a window of another trial at least as long, and the fill
 #: then stacks its training frames from the whole trials as ``fill(training=)`` does. Cut to their
-#: share (200 frames each of the 400-frame trials of scripts/bench_session.py), the trials left
-#: the hold-out out, and a trial's fill erred 57.4 mm where the whole trials gave 18.7.
+#: share (200 frames each of the 400-frame trials of ``python -m benchmarks session``), the
+#: trials left the hold-out out, and a trial's fill erred 57.4 mm where the whole trials gave 18.7.
 WHOLE = 2000
 
 

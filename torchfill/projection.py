@@ -2,7 +2,7 @@
 
 No real OpenPose data is shared with the project, so the 2-D experiments (Li et al. 2020, Table 3)
 run on projections of the 3-D marker recordings. :func:`side_view` is the one projection used
-everywhere (scripts/eval_2d.py, experiments/pca_2d.yaml, the tests): an orthographic camera looking
+everywhere (experiments/pca_2d.yaml, the tests): an orthographic camera looking
 horizontally, perpendicular to the recording's main horizontal direction, i.e. a side view of a
 walk. Orthographic keeps the data linear in the 3-D positions; a real camera adds perspective, which
 changes little for a subject far from it compared with its size.

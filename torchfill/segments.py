@@ -63,7 +63,7 @@ PAIR_BLOCK = 1 << 17
 #: Data-found segments: each marker's nearest neighbours (in a few frames) whose spreads the
 #: clustering reads (more than ``NEIGHBOURS``: average linkage reads the pairs between two
 #: clusters; 16 agreed with the tables as all pairs did on the 13 recordings of
-#: scripts/eval_segments.py, 12 left one 8 points lower).
+#: ``python -m benchmarks segments``, 12 left one 8 points lower).
 CLUSTER_NEIGHBOURS = 16
 #: Two clusters merge only where at least this share of the pairs between them was measured.
 MEASURED = 0.5
@@ -80,7 +80,7 @@ DATA_MATES = 5
 MATES_UP_TO = 300
 #: A fill finds no segments in the data of more markers than this (a dense surface: its points
 #: are each other's donors through the constraints' rigid pairs). On the 6 890-point body of
-#: scripts/bench_dense_points.py the clusters took the linear fill's RMSE on the gaps from 4.35
+#: a dense-point benchmark the clusters took the linear fill's RMSE on the gaps from 4.35
 #: to 4.30 mm at twice the time (17 -> 35 s); ``segments="data"`` still finds them.
 DENSE = 300
 

@@ -144,10 +144,16 @@ def _c3d_header(raw: bytearray, rng, suffix) -> str:
     return f"header_word{word + 1}={value}"
 
 
-def _c3d_param(raw: bytearray, rng, suffix) -> str:
+def _layout(raw: bytearray):
+    """The C3D layout of ``raw``, None where it does not parse (the mutation then flips bytes)."""
     try:
-        lay = c3d_io.parse(bytes(raw), "x.c3d")
+        return c3d_io.parse(bytes(raw), "x.c3d")
     except Exception:
+        return None
+
+
+def _c3d_param(raw: bytearray, rng, suffix) -> str:
+    if (lay := _layout(raw)) is None:
         return _flip(raw, rng, suffix)
     params = [p for g in lay.params.values() for p in g.values() if p.data]
     if not params:
@@ -164,9 +170,7 @@ def _c3d_param(raw: bytearray, rng, suffix) -> str:
 
 
 def _c3d_values(raw: bytearray, rng, suffix) -> str:
-    try:
-        lay = c3d_io.parse(bytes(raw), "x.c3d")
-    except Exception:
+    if (lay := _layout(raw)) is None:
         return _flip(raw, rng, suffix)
     n_words = lay.n_frames * lay.frame_words
     if not n_words:

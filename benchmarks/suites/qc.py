@@ -44,7 +44,7 @@ from torchfill import metrics
 from torchfill.solvers.rigid import rigid_pairs
 
 from .. import data, scores
-from ..cases import load_masks
+from ..cases import MASKS, load_masks
 from ..methods import spatial
 from ..rows import read_csv, write_csv
 from ..tables import write_block
@@ -54,21 +54,9 @@ GAPS = data.RESULTS / "qc" / "gaps.csv"
 DOC = data.DOCS / "real-gaps.md"
 COMMAND = "python -m benchmarks qc --doc docs/real-gaps.md"
 
-#: name, gap source (its mask), truth recording, seed
-TRANSPLANTS = [
-    ("wh11_cmu8502", "c3dorg_s26_walking_hybrid_1_1.c3d", "cmu_85_02.c3d", 0),
-    ("wh11_hamner", "c3dorg_s26_walking_hybrid_1_1.c3d", "osim_hamner_subject02_running.trc", 1),
-    ("wh15_hamner", "c3dorg_s26_walking_hybrid_1_5.c3d", "osim_hamner_subject02_running.trc", 2),
-    ("wh13_zoo", "c3dorg_s26_walking_hybrid_1_3.c3d", "biomechzoo_hockey_wrist_shot_009.c3d", 3),
-    ("wh14_cmu8502", "c3dorg_s26_walking_hybrid_1_4.c3d", "cmu_85_02.c3d", 4),
-    ("wh2_cgm24", "c3dorg_s26_walking_hybrid_2.c3d", "c3dorg_s00_vicon_cgm24_walking01.c3d", 5),
-    ("s28_rajrun", "c3dorg_s28_type1.c3d", "osim_rajagopal_motion_capture_run.trc", 6),
-    ("s28_cmu0201", "c3dorg_s28_type1.c3d", "cmu_02_01.c3d", 7),
-    ("sprint_hdmbd", "ktk_basket_sprint.c3d", "HDM_bd_01-02_01_120.c3d", 8),
-    ("bts_cmu8502", "ktk_c3d_sample_bts.c3d", "cmu_85_02.c3d", 9),
-    ("coda_hdmmm", "c3dorg_s00_codamotion_gaitwands_20150204.c3d", "hdm05_mm_01-02_03_120.c3d", 10),
-    ("numed_hdmbd", "numediart_03_rolling.c3d", "hdm05_bd_05-01_01_120.c3d", 11),
-]
+#: name, gap source (its mask), truth recording, seed (benchmarks/masks/qc_transplants.csv)
+TRANSPLANTS = [(r["name"], r["source"], r["truth"], int(r["seed"]))
+               for r in read_csv(MASKS / "qc_transplants.csv")]
 
 #: Frames kept at most per case (long sources are cut to a window that keeps a trial end).
 MAX_FRAMES = 1500

@@ -14,7 +14,7 @@ def _set_threads(n: int | None) -> None:
     """torch's threads for this run: ``--threads``, else ``OMP_NUM_THREADS``, else the cores the
     machine leaves idle (at least 1). Threads that wait for busy cores are far slower than one:
     a tucker_tnn iteration on 3000 x 41 frames took 84-93 ms with 1 thread and 685-1427 ms with 2
-    on this 2-core machine at load 9 (scripts/bench_threads.py)."""
+    on a loaded 2-core machine (docs/speed.md)."""
     if n is None:
         if os.environ.get("OMP_NUM_THREADS"):
             return

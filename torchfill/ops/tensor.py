@@ -3,7 +3,7 @@
 TensorLy's conventions throughout (row-major unfolding). Where TensorLy's torch backend is as fast
 or faster it does the work (``multi_mode_dot``, ``cp_to_tensor``), under
 ``tl.backend_context("pytorch")``, never ``tl.set_backend``; where it is slower our own torch
-contraction stays, each saying by how much (scripts/bench_tensorly.py: per call at a recording's
+contraction stays, each saying by how much (timed per call at a recording's
 sizes, 1000 x 41 x 3, Tucker rank (40, 24, 3), CP rank 40, one thread, median of runs on a loaded
 2-core machine). Autograd flows through all of them.
 """

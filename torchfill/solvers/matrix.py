@@ -54,7 +54,7 @@ Singular values: every SVD here is of a tall-and-thin (or short-and-wide) matrix
 ``svd="gram"`` (default) eigendecomposes the small Gram matrix (123 x 123) and never forms ``U``
 for thresholding: ``D_tau(X) = X V diag(max(s - tau, 0) / s) V^T``; ``svd="full"`` uses
 ``torch.linalg.svd``. In float64 the Gram route resolves singular values down to ~1e-8 of the
-largest, far below any threshold used here (see scripts/bench_matrix.py for speed and accuracy).
+largest, far below any threshold used here (speed: docs/speed.md).
 
 References
 ----------
