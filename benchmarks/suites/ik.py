@@ -492,19 +492,23 @@ def main(args) -> int:
     with tempfile.TemporaryDirectory(prefix="bench_ik_") as tmp:
         run(methods, args.masks, Path(tmp), done)
     keys = {(name, Path(src).stem, str(seed)) for name, src, seed in CASES[:args.masks]}
-    rows = [_typed(r) for r in done.rows if (r["recording"], r["source"], str(r["seed"])) in keys
-            and r["method"] in methods]
-    summary = summarise(rows, methods)
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
     command = "python -m benchmarks ik " + " ".join(shlex.quote(a) for a in sys.argv[2:])
     meta = {"command": f"OMP_NUM_THREADS={threads} {command.strip()}",
             "seconds": f"{time.perf_counter() - start:.0f}"}
+    if folder:                                  # the page shows every stored run's methods
+        runs = [r for r in read_csv(folder / "ik_run.csv") if r["command"] != meta["command"]]
+        write_csv(folder / "ik_run.csv", runs + [meta | {"methods": ",".join(methods)}])
+        rows, methods, meta = stored(folder)
+    else:
+        rows = [_typed(r) for r in done.rows if r["method"] in methods]
+    rows = [r for r in rows if (r["recording"], r["source"], str(r["seed"])) in keys]
+    summary = summarise(rows, methods)
     text = doc_text(rows, methods, summary, meta)
     print()
     print(text)
     if folder:
         write_csv(folder / "ik_summary.csv", summary)
-        write_csv(folder / "ik_run.csv", [meta | {"methods": ",".join(methods)}])
     if args.doc:
         write_doc(Path(args.doc), text)
     return 0
@@ -537,13 +541,19 @@ def doc_text(rows: list[dict], methods: list[str], summary: list[dict], meta: di
             + case_table(rows, methods))
 
 
+def _methods(runs: list[dict]) -> list[str]:
+    """The methods of the stored runs, in order: a later run (``--redo`` of a few methods)
+    replaces those methods' rows and keeps the others'."""
+    return list(dict.fromkeys(m for r in runs for m in r["methods"].split(",")))
+
+
 def stored(folder: Path = RESULTS) -> tuple[list[dict], list[str], dict] | None:
-    """The stored rows, methods and run of the last run (None when absent)."""
-    run_rows = read_csv(folder / "ik_run.csv")
-    if not run_rows:
+    """The stored rows, methods and commands of the stored runs (None when absent)."""
+    runs = read_csv(folder / "ik_run.csv")
+    if not runs:
         return None
-    meta = run_rows[0]
-    methods = meta["methods"].split(",")
+    methods = _methods(runs)
+    meta = {"command": "`, then `".join(r["command"] for r in runs)}
     rows = [_typed(r) for r in read_csv(folder / "ik_cases.csv") if r["method"] in methods]
     return rows, methods, meta
 

@@ -179,27 +179,82 @@ def benchmark_table(rows: list[dict], ik: list[dict]) -> str:
                      "IK worse than gaps", "CPU s"], body)
 
 
-def doc_blocks() -> dict:
-    """docs/real-gaps.md's table and docs/benchmark.md's, from the stored rows."""
-    from ..rows import read_csv
+def peer_case_table(rows: list[dict]) -> str:
+    """Per case the RMSE (mm, all hidden samples) of the default, the best single method of
+    ours on that case, and each peer (in brackets the share it left to `linear`)."""
+    peers = list(dict.fromkeys(r["method"] for r in rows if methods.is_peer(r["method"])))
+    body = []
+    for case, got in by_case(rows).items():
+        ours = {m: num(r["rmse"]) for m, r in got.items()
+                if m != methods.DEFAULT and not methods.is_peer(m)}
+        best = min(ours, key=ours.get) if ours else None
+        first = next(iter(got.values()))
+        body.append([case + (" (held out)" if first["split"] == "held-out" else ""),
+                     f"{100 * num(first['trial_end']):.0f}",
+                     num(got[methods.DEFAULT]["rmse"]) if methods.DEFAULT in got else np.nan,
+                     f"{ours[best]:.2f} `{best}`" if best else "—",
+                     *[_with_left(got.get(m)) for m in peers]])
+    return markdown(["case", "end %", "default", "best single of ours", *peers], body)
+
+
+def _with_left(row: dict | None) -> str:
+    if row is None:
+        return "—"
+    left = num(row.get("left"))
+    return f"{num(row['rmse']):.2f}" + (f" ({100 * left:.0f} %)" if left >= 0.005 else "")
+
+
+def cost_table(rows: list[dict]) -> str:
+    """docs/speed.md's block: per method the CPU seconds of a case (median, the largest, the
+    sum over the cases) and the peak memory above the start."""
+    body = []
+    for m in dict.fromkeys(r["method"] for r in rows):
+        cpu = [num(r.get("cpu")) for r in rows if r["method"] == m]
+        mb = [num(r.get("peak_mb")) for r in rows if r["method"] == m]
+        body.append([f"`{m}`", len(cpu), np.nanmedian(cpu), np.nanmax(cpu), np.nansum(cpu),
+                     np.nanmedian(mb) if np.isfinite(mb).any() else np.nan])
+    frames = sorted(int(num(r["T"])) for r in rows if r["method"] == rows[0]["method"])
+    return (f"The real-gap benchmark's cases ({frames[0]}-{frames[-1]} frames; "
+            "`OMP_NUM_THREADS=1 python -m benchmarks real-gaps`, the rows of "
+            "experiments/results/real_gaps/rows.csv): CPU seconds of each fill (all threads of "
+            "the process, robust to a loaded machine; these ran on a shared 2-core machine) and "
+            "the peak memory above the process's start.\n\n"
+            + markdown(["method", "cases", "median CPU s", "max CPU s", "sum CPU s",
+                        "median peak MB"], body))
+
+
+def ik_summary() -> list[dict]:
+    """The IK suite's summaries: ours, then the peers' own run."""
     from . import ik
+
+    out = []
+    for folder in (ik.RESULTS, ik.RESULTS / "peers"):
+        got = ik.stored(folder)
+        out += ik.summarise(*got[:2]) if got else []
+    return out
+
+
+def doc_blocks() -> dict:
+    """docs/real-gaps.md's tables (ours), docs/benchmark.md's (ours and the peers: all cases
+    once the peers ran on all of them, else the quick rows) and docs/speed.md's cost table."""
+    from ..rows import read_csv
 
     out = {}
     rows = read_csv(CSV)
-    if rows:
-        names = list(dict.fromkeys(r["method"] for r in rows))
-        out[(data.DOCS / "real-gaps.md", "real_gaps")] = tables(rows, names)
-    full = [r for r in rows if r.get("rmse_end", "") != ""]
-    source, used = ("all cases", full) if full else ("the quick cases", read_csv(QUICK_CSV))
+    ours = [r for r in rows if not methods.is_peer(r["method"])]
+    if ours:
+        names = list(dict.fromkeys(r["method"] for r in ours))
+        out[(data.DOCS / "real-gaps.md", "real_gaps")] = tables(ours, names)
+    full = any(methods.is_peer(r["method"]) for r in rows)
+    source, used = ("all cases", rows) if full else ("the quick cases", read_csv(QUICK_CSV))
     if used:
-        summary = []
-        for folder in (ik.RESULTS, ik.RESULTS / "peers"):      # ours, then the peers' IK run
-            got = ik.stored(folder)
-            summary += ik.summarise(*got[:2]) if got else []
-        out[(BENCHMARK, "benchmark")] = (
+        out[(BENCHMARK, "benchmark")] = "\n\n".join([
             f"From the stored rows of {source} ({len({r['case'] for r in used})} cases, "
             f"{len({r['case'] for r in used if r['split'] == 'held-out'})} held out). "
-            "IK columns: the IK suite's masks (docs/ik.md), mean joint-angle RMSE in degrees; "
-            "a peer's unfilled samples count with `linear`'s fill in the RMSE columns.\n\n"
-            + benchmark_table(used, summary))
+            "RMSE per coordinate over the hidden samples, mm, means over the cases; a peer's "
+            "unfilled samples count with `linear`'s fill in the RMSE columns, its own samples "
+            "alone in RMSE own. IK columns: the IK suite's masks (docs/ik.md), mean joint-angle "
+            "RMSE in degrees.", benchmark_table(used, ik_summary()),
+            "Per case (RMSE mm; in brackets the share of the hidden samples a peer left):",
+            peer_case_table(used)])
     return out
