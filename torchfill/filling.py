@@ -276,7 +276,7 @@ def _finish(case: _Case, o: FillOptions):
                                                       case.seg_idx)
         if o.reject is not None and isinstance(data, MarkerSequence):
             info["rejected"] = unfilled.reject(out, std, case.missing, data.units, o.reject)
-        if case.method == "auto":
+        if case.solver.finish_short_gaps:
             out, std = unfilled.short_gaps_and_bound(out, std, case.missing, case.own, data,
                                                      info)
     if bool(todo.any()):

@@ -91,6 +91,7 @@ class Auto(OneShotSolver):
 
     name = "auto"
     spatial = True
+    finish_short_gaps = True
     fit_data = ("training", "post", "segments")
     params = {
         "candidates": Param(None, (tuple, list), allow_none=True,

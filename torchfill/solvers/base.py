@@ -262,6 +262,10 @@ class Solver(nn.Module):
     #: places a missing marker from the markers seen in the same frame (not only along time):
     #: fill()'s extrapolation limit then cuts only trial-end frames too empty for that
     spatial: ClassVar[bool] = False
+    #: fill()'s finish keeps this method's short interior gaps on the interpolation across them
+    #: where its fill departs from it, and bounds its error estimate by what the fill can be off
+    #: (torchfill.qc.finish; docs/real-gaps.md, "Short gaps")
+    finish_short_gaps: ClassVar[bool] = False
     #: the dtype ``fill()`` runs this solver in unless told otherwise (None: the input's, float64);
     #: the solver itself always follows the dtype it is given
     fill_dtype: ClassVar[torch.dtype | None] = None
