@@ -15,6 +15,8 @@ import torchfill
 from torchfill import qc
 from torchfill.cli import main
 
+from benchmarks.suites.qc import PLAUSIBLE_FILES
+
 
 def body(T: int = 300, seed: int = 0) -> np.ndarray:
     """Six markers of one rigid body (a 200 mm box) turning and moving, in mm: (T, 6, 3)."""
@@ -447,3 +449,45 @@ def test_qc_counts_unfilled_samples_as_the_fill_does(tmp_path, capsys):
     assert left >= 300 and f"{left} left unfilled" in said.out
     assert main(["qc", str(src), str(out), "-o", str(tmp_path / "r.html"), "-m", "linear"]) == 0
     assert f"; {left} missing sample(s) left unfilled" in capsys.readouterr().out
+
+
+def _flagged(rows) -> dict:
+    return {(r["marker"], r["first_frame"], r["last_frame"]): r["verdict"] for r in rows
+            if r["verdict"] != "ok"}
+
+
+@pytest.mark.parametrize("name", [n if n == "c3dorg_s04_sub_labels.c3d" else
+                                  pytest.param(n, marks=pytest.mark.slow)
+                                  for n in PLAUSIBLE_FILES])
+def test_qc_without_std_flags_every_gap_the_fill_flagged(name, recording, tmp_path, capsys):
+    """On every real recording with gaps: ``qc IN FILLED`` with no ``--std`` flags (check or
+    reject) every gap that the fill's own verdicts (``fill --report-json``: the fill and its
+    estimate in memory) flag, with the same verdict, and the same as ``qc --std``; a C3D output
+    records those verdicts in its TORCHFILL group."""
+    src = recording(name)
+    out = tmp_path / f"filled{src.suffix}"
+    fill_json, report = tmp_path / "fill.json", ["-o", str(tmp_path / "r.html")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["fill", str(src), "-o", str(out), "--report-json", str(fill_json),
+                     "-q", "-q"]) == 0
+        own = json.loads(fill_json.read_text())
+        capsys.readouterr()
+        assert main(["qc", str(src), str(out), "--json", "-", *report, "-q"]) == 0
+        found = json.loads(capsys.readouterr().out)
+        side = ["--std", f"{out}.std.csv"]
+        assert main(["qc", str(src), str(out), *side, "--json", "-", *report, "-q"]) == 0
+        given = json.loads(capsys.readouterr().out)
+    assert found == given
+    assert _flagged(found) == _flagged(own)
+    if src.suffix == ".c3d":
+        back, seq = torchfill.read(out), torchfill.read(src)
+        rows = _json_rows(seq, back, found)
+        np.testing.assert_array_equal(back.meta["verdict"], qc.sample_verdicts(rows, back.points))
+
+
+def _json_rows(seq, back, found):
+    """The JSON rows of ``qc --json`` as gap rows (index, frames as indices, verdict)."""
+    first = int(seq.first_frame or 0)
+    return [{"j": seq.labels.index(r["marker"]), "start": r["first_frame"] - first,
+             "stop": r["last_frame"] - first + 1, "verdict": r["verdict"]} for r in found]

@@ -108,6 +108,19 @@ def qc_rows(seq, filled, std=None, method: str | None = None) -> list[dict]:
                         prior=seq.meta.get("filled"))
 
 
+def mark_verdicts(seq, filled, rows=None, method: str | None = None) -> list[dict]:
+    """Set ``filled.meta["verdict"]``, the code of each filled sample's qc verdict (``rows``, or
+    those of :func:`qc_rows` with the fill's estimate ``meta["std"]``; codes the input file
+    recorded kept where no gap of this fill is), which a C3D writer records in the file
+    (:mod:`torchfill.io.c3d_marks`). Returns the rows."""
+    from . import qc
+
+    if rows is None:
+        rows = qc_rows(seq, filled, filled.meta.get("std"), method)
+    filled.meta["verdict"] = qc.sample_verdicts(rows, filled.points, seq.meta.get("verdict"))
+    return rows
+
+
 def drop_rejected(seq, filled, method: str | None = None):
     """``(filled, rows)``: the fill with the samples of the gaps its qc verdict rejects left NaN
     (:func:`torchfill.qc.drop_rejected`; one warning counts and names them), and the verdicts of
@@ -182,16 +195,19 @@ def fill_file(job: Job) -> dict:
             want_std = bool(job.std or job.report or job.rejected == "drop")   # qc uses it
             out = torchfill.fill(seq, options=options.replace(return_std=want_std))
             out = out[0] if want_std else out
+            method = job.options.method or torchfill.default_method()
+            rows = None
             if job.rejected == "drop":
-                out, _ = drop_rejected(seq, out, job.options.method or torchfill.default_method())
+                out, rows = drop_rejected(seq, out, method)
+            if want_std:
+                mark_verdicts(seq, out, rows, method)
             plan.write_sequence(out, job.output)
             row["outputs"].append(job.output)
             if job.std:
                 plan.write_text(job.std, std_csv(out), "--std file")
                 row["outputs"].append(job.std)
             if job.report:
-                write_report(seq, out, job.report, job.input, plan=plan,
-                             method=job.options.method or torchfill.default_method())
+                write_report(seq, out, job.report, job.input, plan=plan, method=method)
                 row["outputs"].append(job.report)
         row["filled"] = row["missing"] - int(out.mask.sum())
         row["warnings"] = _texts(caught)

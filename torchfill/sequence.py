@@ -94,6 +94,8 @@ class MarkerSequence:
             meta["filled"] = np.asarray(meta["filled"])[:, index]
         if meta.get("confidence") is not None:      # (T, J) keypoint confidences (OpenPose)
             meta["confidence"] = np.asarray(meta["confidence"])[:, index]
+        if meta.get("verdict") is not None:         # (T, J) qc verdict codes of the fills
+            meta["verdict"] = np.asarray(meta["verdict"])[:, index]
         return replace(self, points=self.points[:, index].copy(),
                        labels=[self.labels[i] for i in index], meta=meta)
 

@@ -12,6 +12,7 @@ from .qc import _qc_rows, _write_json, _write_report
 
 def _cmd_fill(args) -> int:
     import torchfill
+    from torchfill import batch
 
     if args.training:                                 # folders as the recordings they hold
         from torchfill.batch import expand
@@ -46,8 +47,9 @@ def _cmd_fill(args) -> int:
         filled = filled[0] if want_std else filled
         rows = None
         if args.rejected == "drop":
-            from torchfill import batch
             filled, rows = batch.drop_rejected(seq, filled, method)
+        if want_std:                                   # recorded in a C3D (docs/files.md)
+            rows = batch.mark_verdicts(seq, filled, rows, method)
         plan.write_sequence(filled, out_path, backup=backup, **written_as)
         written = [out_path]
         if std_path:

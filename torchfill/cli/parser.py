@@ -70,8 +70,9 @@ def _add_fill(sub) -> None:
                    "where 'torchfill qc' finds it; 'none': not written")
     p.add_argument("--rejected", choices=("keep", "drop"), default=None,
                    help="gaps whose fill the qc verdict rejects: 'drop' leaves them NaN (counted "
-                        "and named), 'keep' writes them (their estimate is in the std file); "
-                        "default: keep")
+                        "and named), 'keep' writes them, marked: a C3D records each fill's "
+                        "verdict in its TORCHFILL parameter group, other formats in the std "
+                        "file that qc reads; default: keep")
     p.add_argument("--extrapolate", metavar="SECONDS",
                    help="seconds a gap at a trial end may be extrapolated in time, in frames "
                         "too empty for a spatial fill (default 0.25); with a limit, markers never "

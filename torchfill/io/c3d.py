@@ -457,7 +457,10 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
         samples stored with a 4th word of 0 (residual 0 and no camera: the C3D mark of an
         interpolated sample), counted only in files whose other samples carry residuals or camera
         masks (many writers store 0 for every sample; there only the -0.0 that torchfill writes
-        in IEEE-float files marks a fill). ``first_frame`` is the file's first frame number.
+        in IEEE-float files marks a fill); ``verdict``, when torchfill recorded its verdicts in
+        the file: (T, J) int8, the code of each filled sample's qc verdict (0 ok, 1 check,
+        2 reject; -1 elsewhere; :mod:`torchfill.io.c3d_marks`). ``first_frame`` is the file's
+        first frame number.
     """
     path = Path(path)
     buf, lay = _load(path)
@@ -476,6 +479,11 @@ def read(path, *, markers_only: bool = True) -> MarkerSequence:
     filled = interpolated(raw)[:, keep]
     if filled.any():
         meta["filled"] = filled
+    from .c3d_marks import sample_codes          # it reads this module's layout
+
+    verdict = sample_codes(lay, keep)
+    if verdict is not None:
+        meta["verdict"] = verdict
     return MarkerSequence(points=raw.xyz[:, keep], labels=[raw.labels[i] for i in keep],
                           rate=lay.rate, units=units, source=path, meta=meta,
                           first_frame=lay.first_frame)

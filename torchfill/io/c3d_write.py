@@ -5,6 +5,7 @@ module notes for the C3D conventions.
 """
 from __future__ import annotations
 
+import io
 import struct
 import warnings
 from pathlib import Path
@@ -12,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ._common import atomic_write, check_writable, default_labels, filled_samples, unwritten_edits
-from .c3d import Layout, _encode_dec, _fail, _load, _raw_points, interpolated
+from . import c3d_marks
+from .c3d import Layout, _encode_dec, _fail, _load, _raw_points, interpolated, parse
 from ..sequence import MarkerSequence
 
 
@@ -71,8 +73,10 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     t, j = np.nonzero(filled & ~same)
     xyz = seq.points[t, j]
     fits = _storable(lay, xyz)
+    written = filled.copy()                     # the filled samples the file will hold
     if not fits.all():
         _warn_unstorable(seq, path, source, lay, t[~fits], j[~fits])
+        written[t[~fits], j[~fits]] = False
         t, j, xyz = t[fits], j[fits], xyz[fits]
     col = 4 * index[j]
     encoded, zero = _encode(lay, xyz)
@@ -90,7 +94,19 @@ def _write_back(seq: MarkerSequence, path: Path, source: Path) -> None:
     for k in range(3):
         words[t, col + k] = zeros
     words[t, col + 3] = invalid
+    out = _marked(seq, bytes(out), lay, path, index, written)
     atomic_write(path, lambda handle: handle.write(out))
+
+
+def _marked(seq: MarkerSequence, buf: bytes, lay: Layout, path: Path, index, written) -> bytes:
+    """``buf`` with the verdicts of ``seq.meta["verdict"]`` on the ``written`` filled samples
+    recorded in its TORCHFILL group (:mod:`torchfill.io.c3d_marks`); unchanged without them."""
+    codes = seq.meta.get("verdict")
+    if codes is None or np.shape(codes) != written.shape:
+        return buf
+    codes = np.where(written, np.asarray(codes, dtype=np.int8), -1)
+    return c3d_marks.with_gaps(buf, lay, path, c3d_marks.runs(codes, np.asarray(index),
+                                                                lay.first_frame))
 
 
 def _storable(lay: Layout, xyz: np.ndarray) -> np.ndarray:
@@ -232,12 +248,16 @@ def _write_fresh(seq: MarkerSequence, path: Path) -> None:
     frames[..., 3] = np.where(valid, np.where(filled, 0.0, 1.0), -1.0)
     analog = np.zeros((0, 1), dtype=np.float32)
     writer.add_frames([(frames[t], analog) for t in range(T)])
+    handle = io.BytesIO()
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "No analog data found")
         try:
-            atomic_write(path, writer.write)
+            writer.write(handle)
         except struct.error as err:      # e.g. a parameter section beyond 255 blocks
             _fail(path, f"too many markers or labels too long for a C3D ({err})")
+    buf = handle.getvalue()
+    buf = _marked(seq, buf, parse(buf, path), path, np.arange(J), valid & filled)
+    atomic_write(path, lambda out: out.write(buf))
 
 
 __all__ = ["write"]

@@ -11,11 +11,11 @@ from .verdicts import (AGREE_MM, BODY_SCALE_MM, DISAGREE_MM, EST_CHECK_MM, EST_R
                        EST_RELATIVE, EXTRAPOLATED_SECONDS, RIGID_CHECK, RIGID_REJECT,
                        SHORT_SECONDS, STEP_AT_CAP, STEP_ROUNDING, VERDICTS, Thresholds, alone,
                        drop_rejected, est_rmse, gap_table, per_mm, rigid_partners,
-                       table_thresholds, thresholds, untested, verdict)
+                       sample_verdicts, table_thresholds, thresholds, untested, verdict)
 
 __all__ = ["AGREE_MM", "BODY_SCALE_MM", "DISAGREE_MM", "EST_CHECK_MM", "EST_REJECT_MM",
            "EST_RELATIVE", "EXTRAPOLATED_SECONDS", "RIGID_CHECK", "RIGID_REJECT", "SHORT_SECONDS",
            "STEP_AT_CAP", "STEP_ROUNDING", "VERDICTS", "Thresholds", "alone", "drop_rejected",
-           "est_rmse", "format_table", "gap_table", "html_report", "per_mm", "rigid_partners", "summary",
-           "table_thresholds", "thresholds", "thresholds_json", "to_json", "unfilled_samples",
+           "est_rmse", "format_table", "gap_table", "html_report", "per_mm", "rigid_partners",
+           "sample_verdicts", "summary", "table_thresholds", "thresholds", "thresholds_json", "to_json", "unfilled_samples",
            "untested", "verdict"]

@@ -379,6 +379,21 @@ def drop_rejected(filled, rows: list[dict], std=None):
     return F, S, dropped
 
 
+def sample_verdicts(rows: list[dict], filled, prior=None) -> np.ndarray:
+    """``(T, J)`` int8: the code (index into ``VERDICTS``) of the verdict of the gap of ``rows``
+    that holds each sample finite in ``filled`` (T, J, D), -1 elsewhere; ``prior`` (T, J) codes
+    kept where no row speaks (fills of an earlier run). ``meta["verdict"]`` of a sequence:
+    what a C3D writer records (:mod:`torchfill.io.c3d_marks`)."""
+    F = np.asarray(filled)
+    out = (np.array(prior, dtype=np.int8, copy=True) if prior is not None
+           else np.full(F.shape[:2], -1, dtype=np.int8))
+    present = np.isfinite(F).all(axis=2)
+    for r in rows:
+        a, b, j = r["start"], r["stop"], r["j"]
+        out[a:b, j] = np.where(present[a:b, j], VERDICTS.index(r["verdict"]), -1)
+    return out
+
+
 def table_thresholds(rows: list[dict]) -> Thresholds | None:
     return rows[0]["thresholds"] if rows else None
 
