@@ -174,6 +174,10 @@ def benchmark_table(rows: list[dict], ik: list[dict]) -> str:
                      f"{k['worse_than_gaps']} of {k['masks']}" if k.get("worse_than_gaps")
                      not in (None, "") else "—",
                      np.nanmedian([num(r.get("cpu")) for r in mine])])
+    if "gaps" in ik_by:                         # IK's baseline: the gaps left, nothing filled
+        body.append(["gaps left (IK skips a missing marker)", *["—"] * 7,
+                     num(ik_by["gaps"].get("rmse_all")), num(ik_by["gaps"].get("rmse_gap")),
+                     "—", "—"])
     return markdown(["method", "RMSE mm", "held out", "trial-end", "interior", "left %",
                      "RMSE own", "verdicts right", "IK deg", "IK gap frames",
                      "IK worse than gaps", "CPU s"], body)
