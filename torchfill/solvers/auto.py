@@ -106,8 +106,7 @@ class Auto(OneShotSolver):
                            "real gaps (False: one fit per candidate, the hold-out fit fills them)"),
         "draws": Param(2, int, low=1,
                        doc="hold-out draws (shifts of the gap pattern) whose errors are pooled "
-                           "for the weights, each a fit of every candidate (but "
-                           "tucker_tnn after the first)"),
+                           "for the weights, each a fit of every candidate"),
         "min_gaps": Param(40, int, low=0,
                           doc="draw again (up to MAX_DRAWS draws) until the pooled draws hold "
                               "out this many gaps: a recording with few gaps gets a thin "

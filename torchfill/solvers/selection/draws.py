@@ -103,14 +103,13 @@ def pooled(first: tuple, fits: Fits, names: list[str], seen: Tensor, V: Tensor,
     (up to ``MAX_DRAWS``) they hold out ``min_gaps`` gaps: the squared errors (C, N), kinds (N,)
     and gap ids (N,; apart between the draws). One draw is enough where its held-out gaps
     take ``ENOUGH_WINDOWS`` distinct windows or more (:func:`windows`): many independent events,
-    not one window of many markers (``min_gaps=0``: exactly ``draws``). The draws after the
-    first leave the ``INTERIOR`` candidates (``tucker_tnn``, the costliest) out: their gap
-    kinds' errors are the first draw's."""
+    not one window of many markers (``min_gaps=0``: exactly ``draws``). The extra draws for
+    ``min_gaps`` leave the ``INTERIOR`` candidates (``tucker_tnn``, the costliest) out."""
     pool = [first]
     enough = min_gaps > 0 and windows(V, first[2]) >= ENOUGH_WINDOWS
     while not enough and (len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
             int(p[2].unique().numel()) for p in pool) < min_gaps)):
-        skip = INTERIOR                         # later draws: the costly candidates once
+        skip = INTERIOR if len(pool) >= draws else ()            # an extra draw: cheap ones
         pool.append(draw(fits, names, seen, V, generator, skip))
     return (torch.cat([p[0] for p in pool], dim=1), torch.cat([p[1] for p in pool]),
             torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pool)]))
