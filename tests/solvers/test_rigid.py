@@ -47,6 +47,40 @@ def test_weighted_kabsch_ignores_points_of_weight_zero():
     np.testing.assert_allclose(t_hat.numpy(), 2.0, atol=1e-10)
 
 
+def test_batched_kabsch_equals_a_per_frame_svd_reference_on_a_real_recording(recording,
+                                                                            monkeypatch):
+    """hdm05_bd_05-01: each named segment's markers carried between 2 000 random frame pairs
+    with random weights (one zeroed), all pairs in one batched call across several blocks and
+    mate counts: every rotation and translation equals the per-pair SVD solution (Kabsch 1976,
+    with the reflection fix) to 1e-9."""
+    from torchfill.ops import rotation
+    from torchfill.segments import resolve
+    monkeypatch.setattr(rotation, "HORN_BLOCK", 300)
+    seq = torchfill.read(recording("hdm05_bd_05-01_01_120.c3d"))
+    X = seq.points
+    rng = np.random.default_rng(3)
+    checked = 0
+    for members in resolve("names", list(seq.labels)).indices(list(seq.labels)).values():
+        if len(members) < 4:
+            continue
+        seen = np.flatnonzero(np.isfinite(X[:, members]).all(axis=(1, 2)))
+        src, dst = rng.choice(seen, 2000), rng.choice(seen, 2000)
+        P, Q = X[src][:, members], X[dst][:, members]
+        w = rng.uniform(0.1, 1.0, size=P.shape[:2])
+        w[np.arange(w.shape[0]), rng.integers(0, w.shape[1], w.shape[0])] = 0.0
+        R, t = (a.numpy() for a in rotation.kabsch(*map(torch.from_numpy, (P, Q, w))))
+        for n in range(0, 2000, 97):
+            wn = w[n] / w[n].sum()
+            cp, cq = wn @ P[n], wn @ Q[n]
+            U, _, Vt = np.linalg.svd((P[n] - cp).T @ (wn[:, None] * (Q[n] - cq)))
+            d = np.sign(np.linalg.det(Vt.T @ U.T))
+            R_ref = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+            np.testing.assert_allclose(R[n], R_ref, atol=1e-9)
+            np.testing.assert_allclose(t[n], cq - R_ref @ cp, atol=1e-9 * np.abs(X[seen]).max())
+            checked += 1
+    assert checked > 50
+
+
 def _segment_motion(T=300, seed=0):
     """Two rigid 4-marker segments moving independently (mm), plus a free marker."""
     rng = np.random.default_rng(seed)
@@ -172,9 +206,10 @@ def test_segment_fill_gives_the_same_bits_on_one_thread_and_two():
 
 
 def test_segment_fill_a_block_of_rows_at_a_time_gives_the_same_bits(monkeypatch):
-    """The batched consistency and Kabsch work of all markers goes a block of rows at a time (a
-    long recording's peak memory does not grow with the whole batch): blocks of a few rows, cut
-    across the markers' requests, give the bits of one block over all rows."""
+    """The batched consistency and Kabsch work of all markers goes a block of rows at a time, the
+    markers a wave at a time (a long recording's peak memory does not grow with the whole batch):
+    blocks of a few rows cut across the markers' requests, one marker per wave and rotations
+    solved four at a time give the bits of one block over all rows."""
     from torchfill.ops import rotation
     from torchfill.solvers import rigid_batch
     X = _segment_motion()
@@ -183,16 +218,31 @@ def test_segment_fill_a_block_of_rows_at_a_time_gives_the_same_bits(monkeypatch)
     X[40:90, 3] = np.nan
     X[120:130, 1] = np.nan
     segments = {"a": [0, 1, 2, 3, 4], "b": [3, 4, 5, 6, 7]}
-    monkeypatch.setattr(rotation, "HORN_BLOCK", 4)        # the same rotations' neighbours
     results = []
-    for rows, kabsch_rows in ((1 << 40, 1 << 40), (5, 8)):
+    for rows, wave, horn in ((1 << 40, 1 << 40, 1 << 40), (5, 1, 4)):
         monkeypatch.setattr(rigid_batch, "ROWS", rows)
-        monkeypatch.setattr(rigid_batch, "KABSCH_ROWS", kabsch_rows)
+        monkeypatch.setattr(rigid_batch, "WAVE_ROWS", wave)
+        monkeypatch.setattr(rotation, "HORN_BLOCK", horn)
         rigid.clear_cache()
         results.append(segment_fill(X, None, segments, bridge=True))
     for a, b in zip(*results):
         assert np.array_equal(a, b, equal_nan=True)
     assert np.isfinite(results[0][0][100:160, 0]).all()
+
+
+def test_segment_fill_with_no_segment_to_fit_and_with_twin_segments():
+    """Segments of three markers leave every sample to other models (no marker to estimate);
+    two segments with the same members give the first segment's estimate, the same bits as that
+    segment alone."""
+    X = _segment_motion()
+    X[100:160, 0] = np.nan
+    est, std, seg_of = segment_fill(X, None, {"a": [0, 1, 2], "b": [4, 5, 6]})
+    assert np.isnan(est).all() and np.isnan(std).all() and (seg_of == -1).all()
+    alone = segment_fill(X, None, {"a": [0, 1, 2, 3]})
+    twins = segment_fill(X, None, {"a": [0, 1, 2, 3], "b": [3, 2, 1, 0]})
+    for a, b in zip(alone, twins):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.isfinite(alone[0][100:160, 0]).all()
 
 
 def test_one_mate_is_left_to_other_models_and_the_method_says_which_markers():

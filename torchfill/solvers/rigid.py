@@ -57,7 +57,7 @@ from ..ops.rotation import kabsch
 from ..runtime.cache import Memo
 from .base import OneShotSolver, Param, register
 from .interp import Pchip
-from .rigid_batch import _drive, _Kabsch, _Shape
+from .rigid_batch import _drive, _Fit, _Kabsch
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
 
 Tensor = torch.Tensor
@@ -65,107 +65,87 @@ Tensor = torch.Tensor
 
 #: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
 HOLDOUT_FRAMES = 64
-#: The hold-out error (the fill's estimate) is measured on frame pairs with three mates whose
-#: consistency factor (see :func:`.rigid_batch._consistency`) stays above this: with a head's four
-#: markers and one of them swapped with a marker 1.8 m away (biomechzoo hockey's LFHD over its last
-#: frames), the hold-out errors of those frames made the head's estimate too large for the default
-#: to use its 3.7 mm fills. The fill itself keeps such frames (the ghost down-weighted): leaving
-#: them to the other models took ``rigid`` there from 0.96 to 6.0 x gapfill's RMSE.
-FIRM = 0.5
 #: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
 HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
 
-def _carry(X: np.ndarray, seen: np.ndarray, j: int, M: np.ndarray, w: np.ndarray,
-           src: np.ndarray, dst: np.ndarray, min_mates: int = 3, shape=None, firm: bool = False
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights ``w``;
-    a mate counts where it is observed in both frames; with ``shape``, a mate whose distances to the
-    others are off their observed band in either frame is down-weighted there:
-    :func:`.rigid_batch._consistency`; with ``firm``, a frame pair needs ``min_mates`` mates above
-    ``FIRM`` there). Returns the estimates (n, 3) and the bool (n,) of those with ``min_mates``
-    mates. A generator: it yields its consistency and Kabsch work to :func:`_drive`."""
-    W = w[None] * (seen[src][:, M] & seen[dst][:, M])
-    ok = (W > 0).sum(axis=1) >= min_mates
-    out = np.full((src.size, 3), np.nan)
-    if not ok.any():
-        return out, ok
-    src, dst, W = src[ok], dst[ok], W[ok]
-    P = np.nan_to_num(X[src][:, M])
-    Q = np.nan_to_num(X[dst][:, M])
-    if shape is not None:
-        Cp, Cq = yield _Shape([(P, src, W > 0, shape), (Q, dst, W > 0, shape)])
-        C = Cp * Cq
-        W = W * C
-        posed = ((W > 0) & (C > FIRM)).sum(axis=1) >= min_mates
-        del Cp, Cq, C                 # not held while the other tasks' fits are computed
-        if firm and not posed.all():  # a mate off its place leaves too few to fix the pose
-            keep = np.flatnonzero(ok)[posed]
-            ok = np.zeros_like(ok)
-            ok[keep] = True
-            src, dst, P, Q, W = src[posed], dst[posed], P[posed], Q[posed], W[posed]
-    R, t = yield _Kabsch((P, Q, W))
-    out[ok] = np.einsum("nc,ndc->nd", X[src, j], R) + t
-    return out, ok
+def _carry(seen, j, M, w, src, dst, min_mates=3, shape=None, firm=False, valid=True):
+    """Marker ``j`` carried from frames ``src`` to frames ``dst`` by its mates ``M`` (weights
+    ``w``; a mate counts where it is observed in both frames; with ``shape``, a mate whose
+    distances to the others are off their observed band in either frame is down-weighted there;
+    with ``firm``, a frame pair needs three mates above ``FIRM`` there: see
+    :mod:`.rigid_batch`). Returns the bool (n,) of the pairs with ``min_mates`` mates (and
+    ``valid``) and the :class:`.rigid_batch._Fit` carry of those, for :func:`_carried`."""
+    W = w[None] * (seen[src[:, None], M] & seen[dst[:, None], M])
+    ok = ((W > 0).sum(axis=1) >= min_mates) & valid
+    return ok, (j, M, W[ok], src[ok], dst[ok], shape, firm)
 
 
-def _lag_pairs(refs: np.ndarray, lag: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Reference frames ``src`` and the first ``dst`` at least ``lag`` frames later, at most
-    ``HOLDOUT_FRAMES`` of them spread evenly; None with fewer than three."""
-    later = np.searchsorted(refs, refs + lag)
-    ok = later < refs.size
-    if ok.sum() < 3:
-        return None
-    src, dst = refs[ok], refs[later[ok]]
-    pick = np.unique(np.linspace(0, src.size - 1, min(src.size, HOLDOUT_FRAMES))
-                     .round().astype(int))
-    return src[pick], dst[pick]
-
-def _holdout_curve(X, seen, j, M, w, refs, shape=None, reach: float = np.inf
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """RMS error (3-D) of carrying observed ``j`` between reference frames ``refs`` over each of
-    ``HOLDOUT_LAGS`` frames (those with at least three pairs) up to the first that covers
-    ``reach`` (the longest one asked for: longer lags change no estimate): the fill's error by
-    reach. All lags go through one batched Kabsch."""
-    srcs, dsts, tags = [], [], []
-    last = int(np.searchsorted(HOLDOUT_LAGS, reach))
-    for n, lag in enumerate(HOLDOUT_LAGS[:last + 1]):
-        pairs = _lag_pairs(refs, lag)
-        if pairs is None:
-            break
-        srcs.append(pairs[0])
-        dsts.append(pairs[1])
-        tags.append(np.full(pairs[0].size, n))
-    if not srcs:
-        return np.zeros(0), np.zeros(0)
-    src, dst, tag = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(tags)
-    est, good = yield from _carry(X, seen, j, M, w, src, dst, shape=shape, firm=True)
-    sq = np.where(good, np.nansum((est - X[dst, j]) ** 2, axis=1), 0.0)
-    lags, errs = [], []
-    for n in range(len(srcs)):
-        g = good & (tag == n)
-        if g.sum() >= 3:
-            lags.append(np.median(dst[g] - src[g]))
-            errs.append(np.sqrt(sq[g].mean()))
-    return np.asarray(lags, float), np.maximum.accumulate(np.asarray(errs, float))
+def _carried(ok: np.ndarray, answer) -> tuple[np.ndarray, np.ndarray]:
+    """The estimates (n, 3) of a :func:`_carry` from its answer (NaN where none) and the bool
+    (n,) of those."""
+    e, posed = answer
+    rows = np.flatnonzero(ok)[posed]
+    out = np.full((ok.size, 3), np.nan)
+    out[rows] = e[posed]
+    good = np.zeros(ok.size, dtype=bool)
+    good[rows] = True
+    return out, good
 
 
-def _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape=None):
-    """Blend of ``j`` carried from the nearest reference before and after each ``todo`` frame;
-    returns the estimates, which exist, and their reach (frames to the nearer used edge)."""
+def _lag_pairs(refs: np.ndarray, reach: float = np.inf):
+    """Reference frames ``src`` and the first ``dst`` at least each of ``HOLDOUT_LAGS`` frames
+    later, up to the first lag that covers ``reach`` (longer lags change no estimate) and before
+    the first with fewer than three pairs; at most ``HOLDOUT_FRAMES`` pairs per lag spread evenly
+    (``numpy.linspace``'s picks); ``tag``: each pair's lag (index)."""
+    lags = np.asarray(HOLDOUT_LAGS[:int(np.searchsorted(HOLDOUT_LAGS, reach)) + 1])
+    c = np.searchsorted(refs, refs[-1] - lags, side="right") if refs.size else 0 * lags
+    c = c[:int(np.argmax(c < 3)) if (c < 3).any() else c.size]    # the sources with a later ref
+    m = np.minimum(c, HOLDOUT_FRAMES)
+    tag = np.repeat(np.arange(c.size), m)
+    ends = np.cumsum(m)
+    y = (np.arange(tag.size) - np.repeat(ends - m, m)) * np.repeat((c - 1) / (m - 1), m)
+    y[ends - 1] = c - 1
+    pick = np.round(y).astype(np.int64)
+    keep = np.r_[True, (pick[1:] != pick[:-1]) | (tag[1:] != tag[:-1])]
+    src, tag = refs[pick[keep]], tag[keep]
+    return src, refs[np.searchsorted(refs, src + lags[tag])], tag
+
+
+def _curve(src, dst, tag, sq, good) -> tuple[np.ndarray, np.ndarray]:
+    """The hold-out error curve: per lag (``tag``) with three or more ``good`` pairs, the median
+    reach ``dst - src`` and the RMS of the squared errors ``sq``; the errors made non-decreasing
+    in reach."""
+    d, tag, sq = (dst - src)[good], tag[good], sq[good]
+    n = np.bincount(tag, minlength=1)
+    order = np.lexsort((d, tag))
+    first = np.cumsum(n) - n
+    mid = (d[order][first + np.maximum(n - 1, 0) // 2] + d[order][first + n // 2]) / 2
+    rms = np.sqrt(np.bincount(tag, weights=sq, minlength=1) / np.maximum(n, 1))
+    three = n >= 3
+    return mid[three].astype(float), np.maximum.accumulate(rms[three])
+
+
+def _edges(seen, j, M, w, todo, refs, min_mates, shape):
+    """The carries of ``j`` from the nearest reference before and after each ``todo`` frame: the
+    plan ``(todo, b, a, okb, oka)`` for :func:`_blend`, the reach of each frame (to the nearer
+    used edge) and the two carries."""
     pos = np.searchsorted(refs, todo)
-    has_b, has_a = pos > 0, pos < refs.size
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
     a = refs[np.clip(pos, 0, refs.size - 1)]
-    eb, okb = yield from _carry(X, seen, j, M, w, b, todo, min_mates, shape)
-    ea, oka = yield from _carry(X, seen, j, M, w, a, todo, min_mates, shape)
-    okb &= has_b
-    oka &= has_a
+    okb, fb = _carry(seen, j, M, w, b, todo, min_mates, shape, valid=pos > 0)
+    oka, fa = _carry(seen, j, M, w, a, todo, min_mates, shape, valid=pos < refs.size)
+    reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
+    return (todo, b, a, okb, oka), reach, [fb, fa]
+
+
+def _blend(plan, answers) -> np.ndarray:
+    """The estimates of an :func:`_edges` plan: its two carries blended linearly in time."""
+    todo, b, a, okb, oka = plan
+    eb, ea = _carried(okb, answers[0])[0], _carried(oka, answers[1])[0]
     span = np.maximum(a - b, 1)
     s = np.where(okb & oka, (todo - b) / span, np.where(oka, 1.0, 0.0))[:, None]
-    e = (1 - s) * np.where(okb[:, None], eb, 0.0) + s * np.where(oka[:, None], ea, 0.0)
-    reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
-    return e, okb | oka, reach
+    return (1 - s) * np.where(okb[:, None], eb, 0.0) + s * np.where(oka[:, None], ea, 0.0)
 
 
 def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
@@ -174,7 +154,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     References are the frames with ``j`` and ``min_mates`` mates observed; a frame whose nearest
     references share fewer than ``min_mates`` observed mates with it is carried instead from the
     nearest frames where all of its observed mates (then all but the least rigid, ...) were seen
-    with ``j``."""
+    with ``j``. The fill's carries and the hold-out error curve's go in one request."""
     T = X.shape[0]
     use = seen[:, M] & (w > 0)
     enough = use.sum(axis=1) >= min_mates
@@ -185,18 +165,21 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     if refs.size == 0:
         return np.full((T, 3), np.nan), np.full(T, np.nan), np.zeros(T, dtype=bool)
     lags = errs = np.zeros(0)
-    if todo.size:
-        e, good, reach = yield from _three_mates(X, seen, j, M, w, todo, refs, use, min_mates,
-                                                 shape)
-        lags, errs = yield from _holdout_curve(X, seen, j, M, w, refs, shape, reach=float(
-            reach[good].max()) if good.any() else 0.0)
-        if lags.size:
-            r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs)
-        else:                             # too few observed frames to measure
-            r = np.full(todo.size, np.nan)
     est = np.full((T, 3), np.nan)
     err = np.full(T, np.nan)
     if todo.size:
+        parts, good, reach, fits = _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape)
+        src, dst, tag = _lag_pairs(refs, float(reach[good].max()) if good.any() else 0.0)
+        hold, fit = _carry(seen, j, M, w, src, dst, shape=shape, firm=True)
+        answers = yield _Fit(fits + [fit])
+        e = np.zeros((todo.size, 3))
+        for n, (sel, plan) in enumerate(parts):
+            e[slice(None) if sel is None else sel] = _blend(plan, answers[2 * n:2 * n + 2])
+        x, kept = _carried(hold, answers[-1])
+        lags, errs = _curve(src, dst, tag, np.where(kept, np.nansum(
+            (x - X[dst, j]) ** 2, axis=1), 0.0), kept)
+        r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size \
+            else np.full(todo.size, np.nan)           # too few observed frames to measure
         est[todo[good]] = e[good]
         err[todo[good]] = r[good]
     bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
@@ -204,12 +187,15 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     return est, err, bridged
 
 
-def _three_mates(X, seen, j, M, w, todo, refs, use, min_mates, shape):
-    """:func:`_estimate_at` of the ``todo`` frames from ``refs``; a frame whose nearest references
+def _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape):
+    """:func:`_edges` of the ``todo`` frames from ``refs``; a frame whose nearest references
     share too few mates with it from the nearest frames where all of its observed mates (then
     all but the least rigid, ...) were seen with ``j`` (``use``: those mates, one row per
-    ``todo`` frame)."""
-    e, good, reach = yield from _estimate_at(X, seen, j, M, w, todo, refs, min_mates, shape)
+    ``todo`` frame). Returns the parts ``(frames or None: all, plan)``, which frames are
+    estimated, their reach, and the parts' carries in order."""
+    plan, reach, fits = _edges(seen, j, M, w, todo, refs, min_mates, shape)
+    good = plan[3] | plan[4]
+    parts = [(None, plan)]
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
         codes = use[left] @ (1 << np.arange(M.size, dtype=np.int64))
@@ -222,19 +208,20 @@ def _three_mates(X, seen, j, M, w, todo, refs, use, min_mates, shape):
                 if r.size:
                     w_s = np.zeros_like(w)
                     w_s[S] = w[S]
-                    e2, g2, r2 = yield from _estimate_at(X, seen, j, M, w_s, todo[sel], r,
-                                                         min_mates, shape)
-                    e[sel], good[sel], reach[sel] = e2, g2, r2
+                    p2, reach[sel], f2 = _edges(seen, j, M, w_s, todo[sel], r, min_mates, shape)
+                    good[sel] = p2[3] | p2[4]
+                    parts.append((sel, p2))
+                    fits += f2
                     break
                 S = S[:-1]
-    return e, good, reach
+    return parts, good, reach, fits
 
 
 def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     """Fill, in place, the frames of a gap of ``j`` that the rigid fill left out (fewer than three
     mates observed there) between two frames where ``j`` is known (observed or estimated), one of
     them estimated: ``j`` carried from each of the two by the mates observed in both
-    (:func:`_carry_few`), blended linearly in time as :func:`_estimate_at` does. Without it such a
+    (:func:`_carry_few`), blended linearly in time as :func:`_blend` does. Without it such a
     frame falls to another model while its neighbours keep the rigid fill, and the fill jumps
     there (walking_hybrid_1_4's R_SHANK_3: 32-55 mm where a mate's samples are the file's own
     earlier fill). A trial end is left as it is: carried from its one side, walking_hybrid_1_4's
@@ -285,7 +272,7 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
 
 def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
     """Error (3-D RMS) of carrying ``j`` by two mates over ``reach`` frames, per frame whose
-    mates seen are ``use`` (n, k), measured as :func:`_holdout_curve` does on the frames where
+    mates seen are ``use`` (n, k), measured as the three-mate hold-out curve (:func:`_curve`) on the frames where
     ``j`` and those two are observed, carried by the smallest rotation of their line (the turn
     about it unseen); NaN where too few frames show the three together."""
     out = np.full(reach.size, np.nan)
@@ -296,22 +283,14 @@ def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
             continue
         refs = np.flatnonzero(seen[:, j] & seen[:, pair].all(axis=1))
         sel = codes == code
-        lags, errs = [], []
-        for lag in HOLDOUT_LAGS:
-            pairs = _lag_pairs(refs, lag)
-            if pairs is None:
-                break
-            src, dst = pairs
+        src, dst, tag = _lag_pairs(refs, reach[sel].max())
+        if src.size:
             P, Q = X[src][:, pair], X[dst][:, pair]
             R = _turn(P[:, 1] - P[:, 0], Q[:, 1] - Q[:, 0])
             x = np.einsum("ncd,nd->nc", R, X[src, j] - P.mean(axis=1)) + Q.mean(axis=1)
-            lags.append(np.median(dst - src))
-            errs.append(np.sqrt(np.mean(np.sum((x - X[dst, j]) ** 2, axis=1))))
-            if lag >= reach[sel].max():
-                break
-        if lags:
-            out[sel] = np.interp(np.log(np.maximum(reach[sel], 1)), np.log(lags),
-                                 np.maximum.accumulate(errs))
+            lags, errs = _curve(src, dst, tag, np.sum((x - X[dst, j]) ** 2, axis=1),
+                                np.ones(src.size, dtype=bool))
+            out[sel] = np.interp(np.log(np.maximum(reach[sel], 1)), np.log(lags), errs)
     return out
 
 
@@ -466,38 +445,16 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
     seg_of = np.full((T, J), -1, dtype=np.int64)
     bridged = np.zeros((T, J), dtype=bool)
     members = {s: np.unique(np.asarray(m, dtype=np.int64)) for s, m in segs.items()}
-    need = (~seen).any(axis=0) & seen.any(axis=0)
-    pairs_j, pairs_k = [], []
-    for s, m in members.items():
-        if m.size > min_mates:
-            a, b = np.triu_indices(m.size, 1)
-            pairs_j.append(m[a])
-            pairs_k.append(m[b])
-    if not pairs_j:
-        return est, std, seg_of, bridged
-    pj, pk = np.concatenate(pairs_j), np.concatenate(pairs_k)
-    uniq = np.unique(np.stack([pj, pk], 1), axis=0)
-    stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
-    tasks = []                                  # (segment, marker, mates, weights, shape)
-    for si, (s, m) in enumerate(members.items()):
-        if m.size <= min_mates:
-            continue
-        a, b = np.triu_indices(m.size, 1)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            floor = 0.01 * np.nanmedian(stats.distance[stats.lookup(m[a], m[b])])
-        if not np.isfinite(floor) or floor <= 0:
-            floor = 1e-9
-        for j in m[need[m]]:
-            M = m[m != j]
-            idx = stats.lookup(np.full(M.size, j), M)
-            spread = np.where(idx >= 0, stats.spread[np.maximum(idx, 0)], np.nan)
-            w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
-            if (w > 0).sum() >= min_mates:
-                tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
-
-    estimates = _drive([_estimated_only(_segment_estimate(X, seen, j, M, w, min_mates, shape))
-                        for _, j, M, w, shape in tasks])
+    tasks = _tasks(X, seen, members, min_mates)    # (segment, marker, mates, weights, shape)
+    first: dict = {}                    # segments with the same members: one estimate each
+    for n, (_, j, M, *_) in enumerate(tasks):
+        first.setdefault((j, M.tobytes()), n)
+    runs = sorted(set(first.values()))
+    sizes = [2 * (~seen[:, tasks[n][1]]).sum() + HOLDOUT_FRAMES * len(HOLDOUT_LAGS) for n in runs]
+    done = dict(zip(runs, _drive([_estimated_only(_segment_estimate(X, seen, *tasks[n][1:4],
+                                                                    min_mates, tasks[n][4]))
+                                  for n in runs], X, sizes)))
+    estimates = [done[first[(j, M.tobytes())]] for _, j, M, *_ in tasks]
     extra = np.array([s.startswith(_segments.COMPLETION) for s in members] + [False])
     for (si, j, *_), (at, e, r, b) in zip(tasks, estimates):    # in order: the same choice
         per_coord = r / np.sqrt(3.0)
@@ -514,6 +471,37 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
         seg_of[at, j] = si
         bridged[at, j] = b
     return est, std, seg_of, bridged
+
+
+def _tasks(X, seen, members: dict, min_mates: int) -> list:
+    """``(segment index, marker, mates, weights, shape)`` of each marker with missing samples in
+    each segment of more than ``min_mates`` members: the mates weighted by how rigid their
+    distance to the marker was, ``1 / (spread^2 + floor^2)``; ``shape``: :func:`_shape`."""
+    need = (~seen).any(axis=0) & seen.any(axis=0)
+    pairs = [np.stack([m[a], m[b]], 1) for m in members.values() if m.size > min_mates
+             for a, b in [np.triu_indices(m.size, 1)]]
+    if not pairs:
+        return []
+    uniq = np.unique(np.concatenate(pairs), axis=0)
+    stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
+    tasks = []
+    for si, m in enumerate(members.values()):
+        if m.size <= min_mates:
+            continue
+        a, b = np.triu_indices(m.size, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            floor = 0.01 * np.nanmedian(stats.distance[stats.lookup(m[a], m[b])])
+        if not np.isfinite(floor) or floor <= 0:
+            floor = 1e-9
+        for j in m[need[m]]:
+            M = m[m != j]
+            idx = stats.lookup(np.full(M.size, j), M)
+            spread = np.where(idx >= 0, stats.spread[np.maximum(idx, 0)], np.nan)
+            w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
+            if (w > 0).sum() >= min_mates:
+                tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
+    return tasks
 
 
 def _estimated_only(task):

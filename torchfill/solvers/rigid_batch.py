@@ -1,9 +1,11 @@
 """The rigid reconstruction's work batched over markers and segments.
 
 :func:`torchfill.solvers.rigid.segment_fill` estimates each marker of each segment in a
-generator that yields its consistency weights (:class:`_Shape`) and Kabsch fits
-(:class:`_Kabsch`); :func:`_drive` runs them side by side and answers each round's requests in
-one array computation per mate count, each request getting what it would get alone.
+generator that yields its carries (:class:`_Fit`: marker ``j`` carried between frames by its
+mates, each mate weighted by its consistency, then a weighted Kabsch fit) and, across a hole in
+the mates, plain Kabsch fits (:class:`_Kabsch`); :func:`_drive` runs them side by side and answers
+each round's requests in one array computation per mate count, a bounded block of rows at a time.
+Every row's answer depends on that row alone: the same bits however the rows are batched.
 """
 from __future__ import annotations
 
@@ -11,119 +13,144 @@ import numpy as np
 import torch
 
 from ..metrics import norm_last
-from ..ops.rotation import HORN_BLOCK, kabsch
+from ..ops.rotation import kabsch
 
 #: A mate is trusted in a frame while its distances to the other mates stay within this many
 #: times their observed band (twice the robust spread plus the floor); see :func:`_consistency`.
 CONSISTENT = 3.0
+#: A carry with ``firm`` needs its mates' consistency factor above this (see :func:`_fit_block`).
+FIRM = 0.5
+#: Rows (frame pairs) of one block of the batched work: its temporaries stay a few megabytes.
+ROWS = 1 << 13
+#: The tasks of one wave of :func:`_drive` ask for about this many rows together (their requests
+#: are held until answered): a long recording's memory does not grow with its length.
+WAVE_ROWS = 1 << 18
 
 
-class _Shape(list):
-    """A request of :func:`_drive`: :func:`_consistency` of each ``(P, frames, use, shape)``."""
+class _Fit(list):
+    """A request of :func:`_drive`: carries ``(j, M, W, src, dst, shape, firm)`` -- marker ``j``
+    carried from frames ``src`` to ``dst`` by its mates ``M`` with weights ``W`` (n, k), each mate
+    down-weighted by :func:`_consistency` with ``shape`` (``(D0, band)`` or None) in both frames.
+    Answered by ``(estimate (n, 3), posed (n,))`` each: ``posed`` where ``firm`` is False or three
+    mates keep a consistency above ``FIRM``."""
 
 
 class _Kabsch(tuple):
     """A request of :func:`_drive`: :func:`kabsch` of ``(P, Q, W)`` (NumPy; answered in NumPy)."""
 
 
-def _drive(tasks: list) -> list:
-    """Run the generators ``tasks`` (:func:`_segment_estimate` of each marker and segment) side
-    by side: each round answers all of their pending requests in one batched computation per
-    mate count (a few large array operations instead of one small one per marker); each
-    request's answer is what it would get alone. Returns their return values in order."""
+def _drive(tasks: list, X: np.ndarray | None = None, sizes=None) -> list:
+    """Run the generators ``tasks`` side by side, in waves of about ``WAVE_ROWS`` rows by their
+    ``sizes``: each round answers all of a wave's pending requests in one batched computation
+    per mate count (a few large array operations instead of one small one per marker) on the
+    positions ``X`` (NaN where not observed). Returns their return values in order."""
     out: list = [None] * len(tasks)
-    asks: dict[int, object] = {}
-
-    def advance(i, answer):
-        try:
-            asks[i] = tasks[i].send(answer)
-        except StopIteration as stop:
-            out[i] = stop.value
-            asks.pop(i, None)
-    for i in range(len(tasks)):
-        advance(i, None)
-    while asks:
-        pending = list(asks.items())
-        answers = _answer([r for _, r in pending])
-        for (i, _), a in zip(pending, answers):
-            advance(i, a)
+    sizes = np.ones(len(tasks)) if sizes is None else np.asarray(sizes, float)
+    wave = np.floor((np.cumsum(sizes) - sizes) / WAVE_ROWS)
+    for w in np.unique(wave):
+        asks: dict[int, object] = {}
+        for i in np.flatnonzero(wave == w):
+            _advance(tasks, i, None, asks, out)
+        while asks:
+            pending = list(asks.items())
+            for (i, _), a in zip(pending, _answer(X, [r for _, r in pending])):
+                _advance(tasks, i, a, asks, out)
     return out
 
 
-def _answer(requests: list) -> list:
-    """The answers to ``requests`` (:class:`_Shape` and :class:`_Kabsch`), grouped by mate count."""
-    jobs = [(r, n) for r in requests if isinstance(r, _Shape) for n in range(len(r))]
-    shapes = _batched(_consistency_rows, [_unique_rows(*r[n]) for r, n in jobs])
-    kab = _batched(_kabsch_rows, [r for r in requests if isinstance(r, _Kabsch)])
-    shapes, kab = iter(shapes), iter(kab)
-    return [[next(shapes) for _ in r] if isinstance(r, _Shape) else next(kab) for r in requests]
+def _advance(tasks, i, answer, asks, out) -> None:
+    try:
+        asks[i] = tasks[i].send(answer)
+    except StopIteration as stop:
+        out[i] = stop.value
+        asks.pop(i, None)
 
 
-def _unique_rows(P, frames, use, shape):
-    """``(P, use, D0, band, back)`` of the distinct (frame, mates used) rows: a gap's frames are
-    all carried from the same reference frame."""
-    k = use.shape[1]
-    if k > 40:                                              # the key would overflow
-        return P, use, *shape, None
-    key = frames.astype(np.int64) * (1 << k) + use @ (1 << np.arange(k))
-    _, first, back = np.unique(key, return_index=True, return_inverse=True)
-    return P[first], use[first], *shape, back.reshape(-1)
+def _answer(X, requests: list) -> list:
+    """The answers to ``requests`` (:class:`_Fit` and :class:`_Kabsch`), grouped by mate count."""
+    fits = _batched(lambda jobs: _fit_rows(X, jobs),
+                    [job for r in requests if isinstance(r, _Fit) for job in r],
+                    lambda job: (job[1].size, job[5] is None))
+    kab = _batched(_kabsch_rows, [r for r in requests if isinstance(r, _Kabsch)],
+                   lambda job: job[0].shape[1])
+    fits, kab = iter(fits), iter(kab)
+    return [[next(fits) for _ in r] if isinstance(r, _Fit) else next(kab) for r in requests]
 
 
-def _batched(fn, jobs: list) -> list:
-    """``fn`` (a list of jobs of one ``k`` -> their results) over ``jobs``, tuples whose first
-    array is (n, k, ...), grouped by ``k``; the results in the jobs' order."""
+def _batched(fn, jobs: list, kind) -> list:
+    """``fn`` (a list of jobs of one ``kind``: mate count, ... -> their results) over ``jobs``,
+    grouped by kind; the results in the jobs' order."""
     out: list = [None] * len(jobs)
-    by_k: dict[int, list[int]] = {}
+    by_k: dict[object, list[int]] = {}
     for i, job in enumerate(jobs):
-        by_k.setdefault(job[0].shape[1], []).append(i)
+        by_k.setdefault(kind(job), []).append(i)
     for idx in by_k.values():
         for i, res in zip(idx, fn([jobs[i] for i in idx])):
             out[i] = res
     return out
 
 
-#: Rows of one batched consistency computation (its (n, k, k) arrays stay small).
-ROWS = 1 << 14
-#: Rows of one :func:`kabsch` call: its temporaries stay a few times one block's points, whatever
-#: the recording's length; a multiple of ``HORN_BLOCK``, so that each rotation is solved among
-#: the same neighbours as in one call over all rows (the same bits).
-KABSCH_ROWS = 2 * HORN_BLOCK
+def _fit_rows(X: np.ndarray, jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The answers to the carries ``jobs`` (one mate count), ``ROWS`` rows at a time."""
+    n = np.array([job[3].size for job in jobs])
+    ends = np.cumsum(n)
+    starts = ends - n
+    est, posed = np.empty((int(ends[-1]), 3)), np.empty(int(ends[-1]), dtype=bool)
+    for a in range(0, int(ends[-1]), ROWS):
+        b = min(a + ROWS, int(ends[-1]))
+        inside = [i for i in range(np.searchsorted(ends, a, side="right"),
+                                   np.searchsorted(starts, b)) if n[i]]
+        cut = [(jobs[i], max(a - starts[i], 0), min(b, ends[i]) - starts[i]) for i in inside]
+        est[a:b], posed[a:b] = _fit_block(X, cut)
+    return list(zip(np.split(est, ends[:-1]), np.split(posed, ends[:-1])))
 
 
-def _consistency_rows(jobs: list) -> list[np.ndarray]:
-    """:func:`_consistency` of the rows of ``jobs`` (one ``k``: ``(P, use, D0, band, back)``),
-    each job's shape per row, expanded back to every row of its request (``back``)."""
-    reps = [j[0].shape[0] for j in jobs]
-    D0, band = np.stack([j[2] for j in jobs]), np.stack([j[3] for j in jobs])
-    job = np.repeat(np.arange(len(jobs)), reps)     # each row's shape, taken a block at a time
-    C = np.concatenate([_consistency(P, use, D0[job[a:a + ROWS]], band[job[a:a + ROWS]])
-                        for a, (P, use) in zip(range(0, job.size, ROWS),
-                                               _blocks([j[:2] for j in jobs], ROWS))])
-    parts = np.split(C, np.cumsum(reps)[:-1])
-    return [c if j[4] is None else c[j[4]] for c, j in zip(parts, jobs)]
+def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
+    """One block of :func:`_fit_rows`: the rows ``[a, b)`` of each job of ``cut``."""
+    part = [(j, M, W[a:b], src[a:b], dst[a:b], shape, firm)
+            for (j, M, W, src, dst, shape, firm), a, b in cut]
+    P = np.concatenate([np.nan_to_num(X[src[:, None], M]) for _, M, _, src, *_ in part])
+    Q = np.concatenate([np.nan_to_num(X[dst[:, None], M]) for _, M, _, _, dst, *_ in part])
+    W = np.concatenate([p[2] for p in part])
+    firm = np.concatenate([np.full(p[3].size, p[6]) for p in part])
+    C = _consistency_pairs(P, Q, W > 0, part)
+    if C is not None:
+        W = W * C
+    posed = ~firm | (((W > 0) & (C > FIRM)).sum(axis=1) >= 3 if C is not None else True)
+    R, t = kabsch(*map(torch.from_numpy, (P, Q, W)))
+    x = np.concatenate([X[src, j] for j, _, _, src, *_ in part])
+    return np.einsum("nc,ndc->nd", x, R.numpy()) + t.numpy(), posed
+
+
+def _consistency_pairs(P, Q, use, part) -> np.ndarray | None:
+    """:func:`_consistency` in the rows' source and destination frames, multiplied; each
+    distinct (shape, frame, mates used) row computed once (a gap's frames are all carried from
+    the same reference frame, and from both of its edges). None where the jobs have no shape."""
+    if part[0][5] is None:
+        return None
+    k = use.shape[1]
+    ids: dict[int, int] = {}
+    shapes = [ids.setdefault(id(p[5]), len(ids)) for p in part]       # a task's carries share it
+    one = [part[shapes.index(i)][5] for i in range(len(ids))]
+    D0, band = np.stack([d for d, _ in one]), np.stack([b for _, b in one])
+    job = np.repeat(shapes, [p[3].size for p in part])
+    frames = np.concatenate([p[3] for p in part] + [p[4] for p in part])
+    job2, use2, P2 = np.concatenate([job, job]), np.concatenate([use, use]), np.concatenate([P, Q])
+    if k + int(frames.max() + 1).bit_length() + len(ids).bit_length() < 62:
+        key = ((job2 * (int(frames.max()) + 1) + frames) << k) + use2 @ (1 << np.arange(k))
+        _, first, back = np.unique(key, return_index=True, return_inverse=True)
+        job2, use2, P2 = job2[first], use2[first], P2[first]
+    else:                                                   # the key would overflow
+        back = np.arange(job2.size)
+    C = _consistency(P2, use2, D0[job2], band[job2])[back.reshape(-1)]
+    return C[:job.size] * C[job.size:]
 
 
 def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`kabsch` of the requests ``jobs`` (one ``k``: ``(P, Q, W)``) in one batch."""
-    R, t = (torch.cat(x) for x in zip(*[kabsch(*map(torch.from_numpy, block))
-                                        for block in _blocks(jobs, KABSCH_ROWS)]))
+    R, t = kabsch(*(torch.from_numpy(np.concatenate(x)) for x in zip(*jobs)))
     cut = np.cumsum([j[0].shape[0] for j in jobs])[:-1]
     return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
-
-
-def _blocks(jobs: list, size: int):
-    """The concatenations over ``jobs`` (tuples of arrays with one row per job's item) of each
-    tuple member, ``size`` rows at a time (at least one block, perhaps empty), without building
-    the whole concatenation."""
-    ends = np.cumsum([j[0].shape[0] for j in jobs])
-    starts = ends - [j[0].shape[0] for j in jobs]
-    for a in range(0, max(int(ends[-1]), 1), size):
-        b = a + size
-        inside = [i for i in range(np.searchsorted(ends, a, side="right"),
-                                   np.searchsorted(starts, b)) if ends[i] > starts[i]] or [0]
-        yield tuple(np.concatenate([jobs[i][m][max(a - starts[i], 0):b - starts[i]]
-                                    for i in inside]) for m in range(len(jobs[0])))
 
 
 def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
@@ -133,13 +160,18 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
     (one point far from its place in the segment) stops steering the fit, while one bad mate
     cannot condemn the good ones it is measured against."""
-    D = norm_last(P[:, :, None] - P[:, None])
-    Z = np.abs(D - D0) / band
-    pair = use[:, :, None] & use[:, None] & np.isfinite(Z)
-    pair &= ~np.eye(P.shape[1], dtype=bool)
-    Z = np.where(pair, Z, np.inf)
-    n = pair.sum(axis=2)
-    S = np.sort(Z, axis=2)
-    z = np.take_along_axis(S, np.clip((n - 1) // 2, 0, None)[..., None], axis=2)[..., 0]
-    z = np.where(n > 0, z, 0.0)
-    return (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
+    k = P.shape[1]
+    a, b = np.triu_indices(k, 1)
+    Zp = np.abs(norm_last(P[:, a] - P[:, b]) - D0[..., a, b]) / band[..., a, b]
+    Zp = np.where(use[:, a] & use[:, b] & np.isfinite(Zp), Zp, np.inf)     # pairs used
+    at = np.full((k, k), a.size)                            # each mate's row of pairs: (n, k, k)
+    at[a, b] = at[b, a] = np.arange(a.size)
+    Z = np.concatenate([Zp, np.full((Zp.shape[0], 1), np.inf)], axis=1)[:, at]
+    n = np.isfinite(Z).sum(axis=2)
+    mid = np.clip((n - 1) // 2, 0, None)
+    far = (n > 0) & (n - (np.isfinite(Z) & (Z > CONSISTENT)).sum(axis=2) <= mid)
+    C = np.ones(n.shape)                                   # the lower median within the band
+    if far.any():
+        z = np.take_along_axis(np.sort(Z[far], axis=1), mid[far][:, None], axis=1)[:, 0]
+        C[far] = (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
+    return C
