@@ -165,13 +165,14 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     if refs.size == 0:
         return np.full((T, 3), np.nan), np.full(T, np.nan), np.zeros(T, dtype=bool)
     lags = errs = np.zeros(0)
-    est = np.full((T, 3), np.nan)
-    err = np.full(T, np.nan)
     if todo.size:
         parts, good, reach, fits = _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape)
         src, dst, tag = _lag_pairs(refs, float(reach[good].max()) if good.any() else 0.0)
         hold, fit = _carry(seen, j, M, w, src, dst, shape=shape, firm=True)
         answers = yield _Fit(fits + [fit])
+    est = np.full((T, 3), np.nan)       # (T, ...) arrays made once the wave's fits are done
+    err = np.full(T, np.nan)
+    if todo.size:
         e = np.zeros((todo.size, 3))
         for n, (sel, plan) in enumerate(parts):
             e[slice(None) if sel is None else sel] = _blend(plan, answers[2 * n:2 * n + 2])

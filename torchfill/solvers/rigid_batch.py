@@ -109,8 +109,8 @@ def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
     """One block of :func:`_fit_rows`: the rows ``[a, b)`` of each job of ``cut``."""
     part = [(j, M, W[a:b], src[a:b], dst[a:b], shape, firm)
             for (j, M, W, src, dst, shape, firm), a, b in cut]
-    P = np.concatenate([np.nan_to_num(X[src[:, None], M]) for _, M, _, src, *_ in part])
-    Q = np.concatenate([np.nan_to_num(X[dst[:, None], M]) for _, M, _, _, dst, *_ in part])
+    P, Q = (np.nan_to_num(np.concatenate([X[p[c][:, None], p[1]] for p in part]), copy=False)
+            for c in (3, 4))
     W = np.concatenate([p[2] for p in part])
     firm = np.concatenate([np.full(p[3].size, p[6]) for p in part])
     C = _consistency_pairs(P, Q, W > 0, part)
