@@ -168,17 +168,18 @@ def benchmark_table(rows: list[dict], ik: list[dict]) -> str:
         k = ik_by.get(IK_NAME.get(m, m), {})
         what = PEERS[m[5:]][0] if methods.is_peer(m) else ("torchfill default" if m == "default"
                                                            else f"torchfill `{m}`")
-        body.append([what, mean("rmse"), mean("rmse", [r for r in mine if r["split"] == "held-out"]),
+        body.append([what, len(mine), mean("rmse"),
+                     mean("rmse", [r for r in mine if r["split"] == "held-out"]),
                      mean("rmse_end"), mean("rmse_interior"), f"{100 * mean('left'):.1f}",
                      mean("rmse_own"), _pct(acc), num(k.get("rmse_all")), num(k.get("rmse_gap")),
                      f"{k['worse_than_gaps']} of {k['masks']}" if k.get("worse_than_gaps")
                      not in (None, "") else "—",
                      np.nanmedian([num(r.get("cpu")) for r in mine])])
     if "gaps" in ik_by:                         # IK's baseline: the gaps left, nothing filled
-        body.append(["gaps left (IK skips a missing marker)", *["—"] * 7,
+        body.append(["gaps left (IK skips a missing marker)", *["—"] * 8,
                      num(ik_by["gaps"].get("rmse_all")), num(ik_by["gaps"].get("rmse_gap")),
                      "—", "—"])
-    return markdown(["method", "RMSE mm", "held out", "trial-end", "interior", "left %",
+    return markdown(["method", "cases", "RMSE mm", "held out", "trial-end", "interior", "left %",
                      "RMSE own", "verdicts right", "IK deg", "IK gap frames",
                      "IK worse than gaps", "CPU s"], body)
 
