@@ -22,8 +22,8 @@ __all__ = ["kabsch"]
 def kabsch(P: Tensor, Q: Tensor, w: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Least-squares rotation ``R`` and translation ``t`` with ``Q ~ P @ R.T + t``, batched.
 
-    ``P``, ``Q``: ``(n, k, 3)`` corresponding points (k >= 3, not collinear); ``w``: optional
-    ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R`` ``(n, 3, 3)`` (a
+    ``P``, ``Q``: ``(n, k, 3)`` corresponding points, finite (k >= 3, not collinear); ``w``:
+    optional ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R`` ``(n, 3, 3)`` (a
     proper rotation, det +1) and ``t`` ``(n, 3)``. The rotation is Horn's (1987) unit quaternion,
     the top eigenvector of a 4 x 4 matrix, from the largest root of its characteristic polynomial
     (Theobald 2005): elementwise arithmetic over the batch, a fraction of a batched SVD's or
@@ -45,13 +45,13 @@ HORN_BLOCK = 8192
 def _kabsch(P: Tensor, Q: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:
     """:func:`kabsch` of one block."""
     w = w / w.sum(dim=1, keepdim=True).clamp(min=torch.finfo(w.dtype).tiny)
-    P, Q = torch.where(w[..., None] > 0, P, 0.0), torch.where(w[..., None] > 0, Q, 0.0)
-    cp, cq = (w[..., None] * P).sum(dim=1), (w[..., None] * Q).sum(dim=1)
-    P, Q = P - cp[:, None], Q - cq[:, None]
-    H = (P * w[..., None]).transpose(1, 2) @ Q                          # cross-covariance
-    E0 = 0.5 * (w[..., None] * (P * P + Q * Q)).sum(dim=(1, 2))        # >= the largest root
+    cp, cq = torch.bmm(w[:, None], P), torch.bmm(w[:, None], Q)          # centroids (n, 1, 3)
+    P, Q = P - cp, Q - cq
+    Pw = P * w[..., None]
+    H = Pw.transpose(1, 2) @ Q                                          # cross-covariance
+    E0 = 0.5 * ((Pw * P).sum(dim=(1, 2)) + (w * (Q * Q).sum(dim=2)).sum(dim=1))  # >= the root
     R = _horn(H, E0)
-    t = cq - (cp[:, None] @ R.transpose(1, 2))[:, 0]
+    t = (cq - cp @ R.transpose(1, 2))[:, 0]
     return R, t
 
 
