@@ -117,10 +117,15 @@ def proximal_point(G: Tensor, A: Sequence[Tensor], X_k: Tensor, rho_x: float) ->
     return P.reshape(X_k.shape)
 
 
-def recover_tucker(P: Tensor, T: Tensor, Omega: Tensor) -> Tensor:
+def recover_tucker(P: Tensor, T_Omega: Tensor, gaps: Tensor) -> Tensor:
     """Eq. 19: ``X = P_Omega^c((G x A + rho_x X_k) / (1 + rho_x)) + P_Omega(T)``, given
-    ``P = (G x A + rho_x X_k) / (1 + rho_x)`` (:func:`proximal_point`)."""
-    return torch.where(Omega, T, P)
+    ``P = (G x A + rho_x X_k) / (1 + rho_x)`` (:func:`proximal_point`), ``T_Omega = P_Omega(T)``
+    and the flat indices ``gaps`` of the entries outside ``Omega``: a copy of ``T_Omega`` with
+    ``P`` written at ``gaps`` (the same values as ``torch.where(Omega, T, P)`` in a third of its
+    time)."""
+    X = T_Omega.clone()
+    X.view(-1).index_copy_(0, gaps, P.reshape(-1).index_select(0, gaps))
+    return X
 
 
 def svt(M: Tensor, tau: float, method: str = "gram") -> Tensor:
@@ -309,8 +314,8 @@ class Tucker(Solver):
 
     def _observed_residual(self, Y: Tensor) -> float:
         """``||P_Omega(Y - T)||`` over the entries the fit sees."""
-        W, minus_T, _ = self._fit_data()
-        return float(torch.linalg.vector_norm(torch.addcmul(minus_T, Y, W)))
+        W, T_Omega, _ = self._fit_data()
+        return float(torch.dist(Y * W, T_Omega))
 
     def _change(self, X: Tensor, X_k: Tensor) -> float:
         """``||X - X_k|| / ||X_k||``; both equal the data on the fitted entries, so only the others
@@ -320,17 +325,19 @@ class Tucker(Solver):
         return float(diff / torch.linalg.vector_norm(X_k).clamp(min=1e-300))
 
     def _fit_data(self) -> tuple[Tensor, Tensor, Tensor]:
-        """For the current fit mask (cached while it is the same): the mask as 0/1 weights, minus
-        the data on it, and the flat indices of the entries it leaves out."""
+        """For the current fit mask (cached while it is the same): the mask as 0/1 weights, the
+        data on it (0 elsewhere), and the flat indices of the entries it leaves out."""
         mask = self.Omega_fit_
         if getattr(self, "_fit_cache", (None,))[0] is not mask:
             W = mask.to(self.M_.dtype)
-            self._fit_cache = (mask, W, -(self.M_ * W), (~mask).reshape(-1).nonzero().squeeze(1))
+            self._fit_cache = (mask, W, (self.M_ * W).contiguous(),
+                               (~mask).reshape(-1).nonzero().squeeze(1))
         return self._fit_cache[1:]
 
     # -- one iteration ------------------------------------------------------------------------
     def _recover(self, P: Tensor, X_k: Tensor, G: Tensor, A: list[Tensor]) -> Tensor:
-        return recover_tucker(P, self.M_, self.Omega_fit_)                    # Eq. 19
+        _, T_Omega, gaps = self._fit_data()
+        return recover_tucker(P, T_Omega, gaps)                               # Eq. 19
 
     def step(self) -> dict[str, float]:
         with torch.no_grad():
@@ -469,5 +476,5 @@ class TuckerTNN(Tucker):
                               n_iter=self.apg_iter, svd=self.svd)             # Eqs. 25-30
         else:   # Eq. 24 closed form D_{lam/(1+rho_x)}(P), P = (Z + rho_x X_k) / (1 + rho_x)
             X1 = svt(P.reshape(T, -1), lam / (1.0 + self.rho_x), self.svd)
-        X1 = X1.reshape(P.shape)
-        return torch.where(self.Omega_fit_, self.M_, X1, out=X1)             # reset observed
+        _, T_Omega, gaps = self._fit_data()
+        return recover_tucker(X1.reshape(P.shape), T_Omega, gaps)            # reset observed
