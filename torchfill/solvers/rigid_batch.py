@@ -45,6 +45,7 @@ def _drive(tasks: list, X: np.ndarray | None = None, sizes=None) -> list:
     per mate count (a few large array operations instead of one small one per marker) on the
     positions ``X`` (NaN where not observed). Returns their return values in order."""
     out: list = [None] * len(tasks)
+    X = None if X is None else np.ascontiguousarray(X)
     sizes = np.ones(len(tasks)) if sizes is None else np.asarray(sizes, float)
     wave = np.floor((np.cumsum(sizes) - sizes) / WAVE_ROWS)
     for w in np.unique(wave):
@@ -109,8 +110,9 @@ def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
     """One block of :func:`_fit_rows`: the rows ``[a, b)`` of each job of ``cut``."""
     part = [(j, M, W[a:b], src[a:b], dst[a:b], shape, firm)
             for (j, M, W, src, dst, shape, firm), a, b in cut]
-    P, Q = (np.nan_to_num(np.concatenate([X[p[c][:, None], p[1]] for p in part]), copy=False)
-            for c in (3, 4))
+    flat, J = X.reshape(-1, 3), X.shape[1]          # rows of (frame, mate) taken: a fast gather
+    P, Q = (np.nan_to_num(flat.take(np.concatenate([p[c][:, None] * J + p[1] for p in part]),
+                                    axis=0), copy=False) for c in (3, 4))
     W = np.concatenate([p[2] for p in part])
     firm = np.concatenate([np.full(p[3].size, p[6]) for p in part])
     C = _consistency_pairs(P, Q, W > 0, part)
