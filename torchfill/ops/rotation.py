@@ -23,11 +23,12 @@ def kabsch(P: Tensor, Q: Tensor, w: Tensor | None = None) -> tuple[Tensor, Tenso
     """Least-squares rotation ``R`` and translation ``t`` with ``Q ~ P @ R.T + t``, batched.
 
     ``P``, ``Q``: ``(n, k, 3)`` corresponding points, finite (k >= 3, not collinear); ``w``:
-    optional ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R`` ``(n, 3, 3)`` (a
-    proper rotation, det +1) and ``t`` ``(n, 3)``. The rotation is Horn's (1987) unit quaternion,
-    the top eigenvector of a 4 x 4 matrix, from the largest root of its characteristic polynomial
-    (Theobald 2005): elementwise arithmetic over the batch, a fraction of a batched SVD's or
-    eigh's time. Each item's result depends on its own points only (not on the batch around it).
+    optional ``(n, k)`` non-negative weights (zero: that point is left out). Returns ``R``
+    ``(n, 3, 3)`` (a proper rotation, det +1) and ``t`` ``(n, 3)``. The rotation is Horn's (1987)
+    unit quaternion, the top eigenvector of a 4 x 4 matrix, from the largest root of its
+    characteristic polynomial (Theobald 2005): elementwise arithmetic over the batch, a fraction
+    of a batched SVD's or eigh's time. Each item's result depends on its own points only (not on
+    the batch around it).
     """
     if w is None:
         w = torch.ones(P.shape[:2], dtype=P.dtype, device=P.device)

@@ -273,9 +273,9 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
 
 def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
     """Error (3-D RMS) of carrying ``j`` by two mates over ``reach`` frames, per frame whose
-    mates seen are ``use`` (n, k), measured as the three-mate hold-out curve (:func:`_curve`) on the frames where
-    ``j`` and those two are observed, carried by the smallest rotation of their line (the turn
-    about it unseen); NaN where too few frames show the three together."""
+    mates seen are ``use`` (n, k), measured as the three-mate hold-out curve (:func:`_curve`)
+    on the frames where ``j`` and those two are observed, carried by the smallest rotation of
+    their line (the turn about it unseen); NaN where too few frames show the three together."""
     out = np.full(reach.size, np.nan)
     codes = use @ (1 << np.arange(M.size, dtype=np.int64))
     for code in np.unique(codes):
@@ -388,7 +388,7 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     key = _fingerprint(Xc, seen, segs, min_mates) if Xc.nbytes <= CACHE_BYTES else None
     hit = _KEPT.keyed(key, lambda: _segment_fill(Xc, seen, segs, min_mates))
     del Xc
-    est, std, seg_of, bridged = (a.copy() for a in hit)     # a kept one stays unchanged
+    est, std, seg_of, bridged = hit if key is None else (a.copy() for a in hit)  # kept: a copy
     est *= s                        # in place: long recordings hold fewer full-length copies
     est += m
     std *= s

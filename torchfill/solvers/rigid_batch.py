@@ -144,7 +144,7 @@ def _consistency_pairs(P, Q, use, part) -> np.ndarray | None:
         job2, use2, P2 = job2[first], use2[first], P2[first]
     else:                                                   # the key would overflow
         back = np.arange(job2.size)
-    C = _consistency(P2, use2, D0[job2], band[job2])[back.reshape(-1)]
+    C = _consistency(P2, use2, D0, band, job2)[back.reshape(-1)]
     return C[:job.size] * C[job.size:]
 
 
@@ -155,25 +155,33 @@ def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
     return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
 
 
-def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray) -> np.ndarray:
+def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray,
+                 shape: np.ndarray) -> np.ndarray:
     """Per frame and mate (n, k), a weight factor in (0, 1]: 1 while the mate's distances to the
-    other used mates stay within ``CONSISTENT`` x their bands ``band`` (k, k) of their medians
-    ``D0`` (k, k) (see :func:`_shape`), falling as ``(CONSISTENT / z)^2`` beyond, with ``z`` the
-    lower median of the mate's deviations in bands: a ghost or a swapped label in a mate's track
-    (one point far from its place in the segment) stops steering the fit, while one bad mate
-    cannot condemn the good ones it is measured against."""
+    other used mates stay within ``CONSISTENT`` x their bands ``band`` of their medians ``D0``
+    (each ``(s, k, k)``, row ``i`` taking ``shape[i]``; see :func:`_shape`), falling as
+    ``(CONSISTENT / z)^2`` beyond, with ``z`` the lower median of the mate's deviations in
+    bands: a ghost or a swapped label in a mate's track (one point far from its place in the
+    segment) stops steering the fit, while one bad mate cannot condemn the good ones it is
+    measured against. Each pair is measured once; the medians are sorted only where they leave
+    the band."""
     k = P.shape[1]
     a, b = np.triu_indices(k, 1)
-    Zp = np.abs(norm_last(P[:, a] - P[:, b]) - D0[..., a, b]) / band[..., a, b]
-    Zp = np.where(use[:, a] & use[:, b] & np.isfinite(Zp), Zp, np.inf)     # pairs used
-    at = np.full((k, k), a.size)                            # each mate's row of pairs: (n, k, k)
-    at[a, b] = at[b, a] = np.arange(a.size)
-    Z = np.concatenate([Zp, np.full((Zp.shape[0], 1), np.inf)], axis=1)[:, at]
-    n = np.isfinite(Z).sum(axis=2)
+    Zp = np.abs(norm_last(P[:, a] - P[:, b]) - D0[:, a, b][shape]) / band[:, a, b][shape]
+    used = use[:, a] & use[:, b] & np.isfinite(Zp)                     # pairs used
+    mates = np.zeros((a.size, k))                                       # each pair's two mates
+    mates[np.arange(a.size), a] = mates[np.arange(a.size), b] = 1.0
+    n = used.astype(float) @ mates
     mid = np.clip((n - 1) // 2, 0, None)
-    far = (n > 0) & (n - (np.isfinite(Z) & (Z > CONSISTENT)).sum(axis=2) <= mid)
+    far = (n > 0) & (n - (used & (Zp > CONSISTENT)).astype(float) @ mates <= mid)
     C = np.ones(n.shape)                                   # the lower median within the band
-    if far.any():
-        z = np.take_along_axis(np.sort(Z[far], axis=1), mid[far][:, None], axis=1)[:, 0]
-        C[far] = (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2
+    rows = np.flatnonzero(far.any(axis=1))
+    if rows.size:
+        at = np.full((k, k), a.size)                        # each mate's row of pairs: (m, k, k)
+        at[a, b] = at[b, a] = np.arange(a.size)
+        Z = np.where(used[rows], Zp[rows], np.inf)
+        Z = np.concatenate([Z, np.full((rows.size, 1), np.inf)], axis=1)[:, at]
+        S = np.sort(Z, axis=2)
+        z = np.take_along_axis(S, mid[rows].astype(np.int64)[..., None], axis=2)[..., 0]
+        C[rows] = np.where(far[rows], (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2, 1.0)
     return C
