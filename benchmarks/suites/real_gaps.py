@@ -228,6 +228,14 @@ def cost_table(rows: list[dict]) -> str:
                         "median peak MB"], body))
 
 
+def _quiet(table, *args) -> str:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # means of columns a method's rows lack
+        return table(*args)
+
+
 def ik_summary() -> list[dict]:
     """The IK suite's summaries: ours, then the peers' own run."""
     from . import ik
@@ -259,7 +267,7 @@ def doc_blocks() -> dict:
             "RMSE per coordinate over the hidden samples, mm, means over the cases; a peer's "
             "unfilled samples count with `linear`'s fill in the RMSE columns, its own samples "
             "alone in RMSE own. IK columns: the IK suite's masks (docs/ik.md), mean joint-angle "
-            "RMSE in degrees.", benchmark_table(used, ik_summary()),
+            "RMSE in degrees.", _quiet(benchmark_table, used, ik_summary()),
             "Per case (RMSE mm; in brackets the share of the hidden samples a peer left):",
             peer_case_table(used)])
     return out
