@@ -321,3 +321,54 @@ def test_the_default_fills_nothing_outside_the_observed_volume(recording, name):
     bounds = metrics.volume(seq.points, ~missing)
     assert metrics.outside_volume(out.points, missing, bounds) == 0
     assert np.array_equal(out.points[~missing], seq.points[~missing])
+
+
+def _jacobi_reference(P, ia, ib, d0, band, share_a, share_b, iters):
+    """The soft distances' Jacobi steps summed over every entry (a NaN step included)."""
+    from torchfill.constraints import SOFT_WEIGHT
+
+    P = P.copy()
+    for _ in range(iters):
+        diff = P[ia] - P[ib]
+        n = np.sqrt((diff ** 2).sum(1))
+        err = np.clip(n - d0, -band, band) - (n - d0)
+        use = np.isfinite(n) & (n > 0) & (err != 0)
+        if not use.any():
+            break
+        step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[:, None] * diff
+        C = np.zeros_like(P)
+        np.add.at(C, ia, (share_a * use)[:, None] * step)
+        np.subtract.at(C, ib, (share_b * use)[:, None] * step)
+        count = np.bincount(ia[share_a * use > 0], minlength=len(P)) + \
+            np.bincount(ib[share_b * use > 0], minlength=len(P))
+        P += np.nan_to_num(C / np.maximum(count, 1)[:, None])
+    return P
+
+
+def test_soft_distances_step_as_a_sum_over_every_entry_with_a_nan_partner_held():
+    """The projection adds the steps of the entries outside their band only: the same moves as
+    the sum over every entry, where an entry beside a NaN sample holds its partner still."""
+    from torchfill.constraints import SOFT_ITER, _project_distances
+
+    rng = np.random.default_rng(3)
+    T, J = 40, 5
+    F = rng.normal(0.0, 100.0, (T, J, 3))
+    free = rng.random((T, J)) < 0.4
+    F[5, 2] = np.nan                      # a sample no fill reached, partner of free ones
+    free[5, :] = True
+    free[5, 2] = False
+    j, k = np.triu_indices(J, 1)
+    d0 = rng.uniform(50, 200, j.size)
+    band = rng.uniform(1, 10, j.size)
+    out = F.copy()
+    _project_distances(out, free, j, k, d0, band)
+    t, p = np.nonzero(free[:, j] | free[:, k])
+    cells = np.unique(np.concatenate([t * J + j[p], t * J + k[p]]))
+    ia, ib = np.searchsorted(cells, t * J + j[p]), np.searchsorted(cells, t * J + k[p])
+    fa, fb = free[t, j[p]], free[t, k[p]]
+    want = _jacobi_reference(F.reshape(-1, 3)[cells], ia, ib, d0[p], band[p],
+                             np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb, SOFT_ITER)
+    np.testing.assert_allclose(out.reshape(-1, 3)[cells], want, rtol=1e-12, atol=1e-9)
+    seen = np.isfinite(F[5]).all(1)               # frame 5's samples beside the NaN stay
+    assert np.array_equal(out[5][seen], F[5][seen])
+    assert not np.allclose(out[free], F[free])

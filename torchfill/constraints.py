@@ -127,7 +127,7 @@ class ConstraintReport:
 def constrain(filled, missing, *, extrapolate: int | None = None, long: int | None = None,
               names=None, pairs: RigidPairs | None = None,
               donors: tuple[np.ndarray, np.ndarray] | None = None, segments=None,
-              spatial: bool = False, anchored: np.ndarray | None = None
+              spatial: bool = False, anchored: np.ndarray | None = None, limits=None
               ) -> tuple[np.ndarray, ConstraintReport]:
     """Apply the constraints to a method's fill.
 
@@ -161,6 +161,9 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
         already; a second pass moved them towards partners filled by less exact models (on the
         samples gapfill's rigid-body fill reaches: capture0002's mask on HDM_bd 0.84 -> 1.42 x
         gapfill's RMSE).
+    limits : optional
+        Precomputed :func:`observed_limits` of the same observed samples (the step limit and the
+        capture volume; ``auto``'s candidates share them).
     """
     F = np.array(filled, dtype=np.float64)
     missing = np.asarray(missing, dtype=bool)
@@ -191,7 +194,7 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     _blend_edges(F, free)
     if F.shape[2] == 3:
         _soft_distances(F, free if anchored is None else free & ~anchored, pairs)
-    report.step_limit, bounds = _observed_limits(F, observed)
+    report.step_limit, bounds = limits if limits is not None else observed_limits(F, observed)
     report.end_step_limit = report.step_limit * END_STEP_FACTOR / STEP_FACTOR
     _limit_steps(F, missing, report.step_limit, report, report.end_step_limit)
     _clamp_to_volume(F, bounds, missing, report)
@@ -345,14 +348,11 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     T, J, D = F.shape
     t, p = np.nonzero(free[:, j] | free[:, k])
     a, b, d0, band = j[p], k[p], d0[p], band[p]
-    touched, at = np.unique(np.concatenate([t * J + a, t * J + b]), return_inverse=True)
-    ia, ib = at[:t.size], at[t.size:]               # each entry's two samples in ``P``
-    rows, cols = np.divmod(touched, J)
+    ia, ib, rows, cols = _gathered(t * J + a, t * J + b, T, J)
     P = F[rows, cols]
     if cone is not None:
         band = band + d0 * (1 - cone[2][p]) * _unseen_turn(P.take(ia, 0) - P.take(ib, 0),
                                                             cone[0][p], cone[1][p])
-    ca, cb = _cells(ia, D), _cells(ib, D)
     fa, fb = free[t, a], free[t, b]
     share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
     moved = False
@@ -363,16 +363,49 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
         use = np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():
             break
-        step = SOFT_WEIGHT * np.where(use, err / np.where(n > 0, n, 1), 0)[:, None] * diff
-        sa, sb = share_a * use, share_b * use
-        C = _sum_at(ca, sa[:, None] * step, P.size) - _sum_at(cb, sb[:, None] * step, P.size)
-        count = np.bincount(ia[sa > 0], minlength=P.shape[0]) + \
-            np.bincount(ib[sb > 0], minlength=P.shape[0])
-        P += np.nan_to_num(C.reshape(P.shape) / np.maximum(count, 1)[:, None], copy=False)
+        on = np.flatnonzero(use)            # the others add 0.0 (NaN: see _poison)
+        step = (SOFT_WEIGHT * (err[on] / n[on]))[:, None] * diff[on]
+        sa, sb, ia_on, ib_on = share_a[on], share_b[on], ia[on], ib[on]
+        C = _sum_at(_cells(ia_on, D), sa[:, None] * step, P.size) - \
+            _sum_at(_cells(ib_on, D), sb[:, None] * step, P.size)
+        count = np.bincount(ia_on[sa > 0], minlength=P.shape[0]) + \
+            np.bincount(ib_on[sb > 0], minlength=P.shape[0])
+        C = C.reshape(P.shape)
+        C /= np.maximum(count, 1)[:, None]
+        _poison(C, diff, n, ia, ib)
+        P += C
         moved = True
     if moved:                       # a step adds 0.0 to the untouched samples: -0.0 becomes 0.0
         F += 0.0
         F[rows, cols] = P
+
+
+def _poison(C: np.ndarray, diff: np.ndarray, n: np.ndarray, ia: np.ndarray,
+            ib: np.ndarray) -> None:
+    """A Jacobi step's mean moves ``C`` (samples x D, in place) with a sample's coordinate
+    held where an entry's difference ``diff`` is not finite there (its zero step times that NaN
+    made the sum NaN, then 0), and any other NaN or infinity as ``np.nan_to_num`` makes it."""
+    bad = np.flatnonzero(~np.isfinite(n))
+    if bad.size:
+        held = np.zeros(C.shape, dtype=bool)
+        np.logical_or.at(held, ia[bad], ~np.isfinite(diff[bad]))
+        np.logical_or.at(held, ib[bad], ~np.isfinite(diff[bad]))
+        C[held] = 0.0
+    if not np.isfinite(C).all():
+        np.nan_to_num(C, copy=False)
+
+
+def _gathered(sa: np.ndarray, sb: np.ndarray, T: int, J: int):
+    """Each entry's two samples ``sa``, ``sb`` (flat indices into (T, J)) as places ``ia``, ``ib``
+    among the samples touched, sorted, each once (their ``rows``, ``cols``): what
+    ``np.unique(..., return_inverse=True)`` gives, by a table of the (T, J) samples."""
+    hit = np.zeros(T * J, dtype=bool)
+    hit[sa] = True
+    hit[sb] = True
+    touched = np.flatnonzero(hit)
+    place = np.cumsum(hit) - 1
+    rows, cols = np.divmod(touched, J)
+    return place[sa], place[sb], rows, cols
 
 
 def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> np.ndarray:
@@ -440,7 +473,7 @@ def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> n
     return np.repeat(total[None] / len(steps), len(steps), axis=0) if both else steps
 
 
-def _observed_limits(F, observed) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+def observed_limits(F, observed) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
     """The step limit and the capture volume of the ``observed`` samples of ``F``: kept for the
     same observed samples (``auto``'s candidates share them; 25 of 30 ms of a candidate's
     constraints on 3000 x 41 markers went to these)."""
@@ -496,7 +529,7 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
     the data). Returns the constrained fills (a candidate's own value where the post-step left
     NaN) and the (T, J) samples that rigid donors fill: those depend on the observed samples only,
     so the rigid pairs and donors are found once for all candidates, and the candidates are
-    constrained in threads (numpy lets go of the GIL for most of it). ``fill()`` passes this
+    constrained in threads (numpy lets go of the GIL for most of it); so are the step limit and the volume. ``fill()`` passes this
     function to ``auto`` as its ``post`` fit data.
     """
     from .runtime.threads import thread_map
@@ -506,16 +539,18 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
         return fills, donor
     miss = missing.cpu().numpy()
     pairs = donors = None
+    X = torch.where(missing[..., None], float("nan"), fills[0]).cpu().numpy()
+    seen = ~miss & _finite(X)
     if fills.shape[-1] == 3:
-        X = torch.where(missing[..., None], float("nan"), fills[0]).cpu().numpy()
-        seen = ~miss & _finite(X)
         pairs = rigid_pairs(X, seen)
         donors = rigid_donors(X, seen, pairs, segments)
+    limits = observed_limits(X, seen)           # the same observed samples in every fill
 
     def one(F: torch.Tensor):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors, segments=segments)
+            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors, segments=segments,
+                             limits=limits)
     done = list(thread_map(one, fills))
     if done[-1][1].rigid_done is not None:
         donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)

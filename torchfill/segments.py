@@ -435,9 +435,9 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     order = np.lexsort((k, j))
     j, k = j[order], k[order]
     stride = -(-X.shape[0] // PAIR_FRAMES)
-    Xt = np.ascontiguousarray(np.moveaxis(X[::stride], 2, 0))     # (D, T, J): gathers are fast
-    obs = observed[::stride]
-    T = obs.shape[0]
+    Xt = np.ascontiguousarray(np.moveaxis(X[::stride], 0, 2))     # (J, D, T): a marker's rows
+    obs = np.ascontiguousarray(observed[::stride].T)              # (J, T): gathers copy rows
+    T = obs.shape[1]
     n = j.size
     med, mad, wide, cone = (np.full(n, np.nan) for _ in range(4))
     direction = np.full((n, X.shape[2]), np.nan)
@@ -445,8 +445,8 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     block = max(1, PAIR_BLOCK // max(T, 1))
     for a in range(0, n, block):
         jb, kb = j[a:a + block], k[a:a + block]
-        both = obs.take(jb, axis=1) & obs.take(kb, axis=1)
-        V = Xt.take(jb, axis=2) - Xt.take(kb, axis=2)                # (D, T, n)
+        both = (obs.take(jb, axis=0) & obs.take(kb, axis=0)).T     # (T, n)
+        V = (Xt.take(jb, axis=0) - Xt.take(kb, axis=0)).transpose(1, 2, 0)     # (D, T, n)
         D = _norm_first(V)
         D[~both] = np.nan
         c = both.sum(axis=0)
