@@ -497,7 +497,8 @@ def main(args) -> int:
     meta = {"command": f"OMP_NUM_THREADS={threads} {command.strip()}",
             "seconds": f"{time.perf_counter() - start:.0f}"}
     if folder:                                  # the page shows every stored run's methods
-        runs = [r for r in read_csv(folder / "ik_run.csv") if r["command"] != meta["command"]]
+        runs = [r for r in read_csv(folder / "ik_run.csv") if r["command"] != meta["command"]
+                and not set(r["methods"].split(",")) <= set(methods)]     # not rerun whole
         write_csv(folder / "ik_run.csv", runs + [meta | {"methods": ",".join(methods)}])
         rows, methods, meta = stored(folder)
     else:
