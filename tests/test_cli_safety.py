@@ -321,6 +321,43 @@ def test_ctrl_c_stops_a_batch_at_once_and_leaves_no_worker(tmp_path, walk):
     assert _snapshot(out) == written                   # nothing written after the exit
 
 
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
+def test_ctrl_c_stops_a_long_recording_in_worker_processes_and_leaves_no_worker(tmp_path, walk):
+    """The later windows of a long recording run in worker processes (started at once here);
+    ^C ends them and the fill, writes nothing, and no worker is left."""
+    if len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("one core: the windows run in this process")
+    X = walk(6000, 8)
+    X[100:160, 1] = X[2500:2540, 3] = X[5000:5050, 5] = np.nan
+    src = tmp_path / "long.npz"
+    np.savez(src, points=X, labels=np.array([f"M{j}" for j in range(8)]), rate=100.0, units="mm")
+    tag = uuid.uuid4().hex
+    env = _cli_env(tmp_path, tag)
+    hook = tmp_path / "hook" / "sitecustomize.py"
+    hook.write_text(hook.read_text() + "if sys.argv[:1] == ['-m']:\n"
+                    "    import torchfill.windows\n"
+                    "    torchfill.windows.LAUNCH_AFTER = 0.0\n")
+    out = tmp_path / "out.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "torchfill", "fill", str(src), "-o", str(out),
+                             "-m", "svt", "-p", "max_iter=3000", "-p", "tol=0", "--window", "300",
+                             "--threads", "2", "-q"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=_as_from_a_terminal)
+    deadline = time.monotonic() + 300
+    while len(_tagged_processes(tag)) < 4:          # this one, the resource tracker, 2 workers
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(2.0)                                   # the workers at their windows
+    os.killpg(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == "torchfill: interrupted"
+    assert "Traceback" not in stderr, stderr
+    assert _tagged_processes(tag) == []
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == \
+        ["flags", "hook", "long.npz"]
+
+
 # -- every argument checked before any file is read (#7) -------------------------------------------
 def test_bad_arguments_fail_before_any_file_is_read(tmp_path, walk, capsys, monkeypatch):
     src = _recording(tmp_path / "a.c3d", walk)

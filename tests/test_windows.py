@@ -195,3 +195,80 @@ def test_progress_names_the_window(walk):
     assert n > 2 and {d["windows"] for d in seen} == {n}
     assert {d["window"] for d in seen} == set(range(1, n + 1))
     assert list(seen[0])[:2] == ["window", "windows"] and "iter" in seen[0]
+
+
+def _spy_on_workers(monkeypatch) -> list:
+    """The worker counts of the process pools the windows start (a list that grows)."""
+    launched = []
+
+    class Spy(windows.Processes):
+        def launch(self):
+            before = len(self.started)
+            super().launch()
+            if len(self.started) > before:
+                launched.append(len(self.started))
+    monkeypatch.setattr(windows, "Processes", Spy)
+    monkeypatch.setattr(windows.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)      # two lanes on any machine
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
+    return launched
+
+
+def test_later_windows_in_worker_processes_fill_bit_for_bit_as_in_threads(recording, monkeypatch):
+    """The default on a real recording of four windows: the three later ones in two worker
+    processes (started at once here) give the threads' fill and error estimate bit for bit, and
+    their progress comes back."""
+    truth = torchfill.read(recording("cmu_85_02.c3d")).points             # 810 frames
+    mask = gaps.multi_gap(*truth.shape[:2], n_markers=10, gap_length=20, max_gaps=2, seed=0)
+    given = np.where(mask[..., None], np.nan, truth)
+    assert len(windows.plan(mask, 300).windows) == 4
+    launched = _spy_on_workers(monkeypatch)
+    monkeypatch.setattr(windows, "LAUNCH_AFTER", 0.0)
+    seen = []
+    filled, std = torchfill.fill(given, window=300, return_std=True, progress=seen.append)
+    assert launched == [2]
+    monkeypatch.setattr(windows, "PROCESS_MIN_LATER", 10**6)               # threads instead
+    threaded, std_threaded = torchfill.fill(given, window=300, return_std=True)
+    assert launched == [2]
+    assert np.array_equal(filled, threaded, equal_nan=True)
+    assert np.array_equal(std, std_threaded, equal_nan=True)
+    assert np.array_equal(filled[~mask], truth[~mask]) and np.isfinite(filled).all()
+    assert {d["window"] for d in seen} == {1, 2, 3, 4} and {d["windows"] for d in seen} == {4}
+
+
+def test_worker_processes_hand_back_warnings_and_errors(walk, monkeypatch):
+    """What a window gives besides its fill crosses back from its worker: a warning is given
+    here (under the caller's filters), an error raised here."""
+    from torchfill.solvers import NotConvergedWarning
+
+    X = walk(T=1200, J=6)
+    mask = gaps.multi_gap(1200, 6, n_markers=3, gap_length=30, max_gaps=2, seed=0)
+    given = np.where(mask[..., None], np.nan, X)
+    launched = _spy_on_workers(monkeypatch)
+    monkeypatch.setattr(windows, "LAUNCH_AFTER", 0.0)
+    with pytest.warns(NotConvergedWarning) as caught:
+        filled = torchfill.fill(given, "svt", window=300, workers=2, params={"max_iter": 3})
+    assert launched == [2] and len(caught) >= 3          # the first window's and the workers'
+    monkeypatch.setattr(windows, "PROCESS_MIN_LATER", 10**6)
+    with pytest.warns(NotConvergedWarning):
+        threaded = torchfill.fill(given, "svt", window=300, workers=2, params={"max_iter": 3})
+    assert np.array_equal(filled, threaded)
+    job = windows.Job("rigid", {}, {}, 1, torch.arange(6))                   # 2-D: refused
+    X2 = torch.from_numpy(given[:300, :, :2].copy())
+    err, _ = windows.fit_remote(job, X2, ~torch.isfinite(X2).all(dim=2), (0, 300), 1, False)
+    assert isinstance(err, ValueError) and "rigid" in str(err)
+
+
+def test_short_recordings_and_fast_windows_stay_in_this_process(walk, monkeypatch):
+    """Worker processes cost a second or two each to start: none for one or two windows, nor when
+    the first window ends before ``LAUNCH_AFTER``."""
+    launched = _spy_on_workers(monkeypatch)
+    X = walk(T=1200, J=6)
+    mask = gaps.multi_gap(1200, 6, n_markers=3, gap_length=30, max_gaps=2, seed=0)
+    given = np.where(mask[..., None], np.nan, X)
+    assert len(windows.plan(mask, 700).windows) == 2 and len(windows.plan(mask, 300).windows) > 3
+    monkeypatch.setattr(windows, "LAUNCH_AFTER", 0.0)
+    torchfill.fill(given, "linear", window=700, workers=2)
+    monkeypatch.setattr(windows, "LAUNCH_AFTER", 60.0)
+    torchfill.fill(given, "linear", window=300, workers=2)
+    assert launched == []

@@ -20,6 +20,7 @@ from .constraints import constrain, constrain_candidates, meet_kept
 from .options import DEFAULT_METHODS, OPTIONS_DOC, FillOptions, default_method, work_dtype
 from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
+from .windows import holdout_std  # noqa: F401 (a public name of this module)
 from .kinds import as_kind, as_tensor, recordings
 from .sequence import MarkerSequence
 from .solvers import available, get_solver, index_segments, place_from_training
@@ -125,7 +126,7 @@ def fill_case(data, options: FillOptions, solve: Callable | None = None):
     """
     case = _prepare(data, options)
     if bool(case.todo.any()):
-        _solve(case, options, solve or _fit)
+        _solve(case, options, solve)
     if case.training is not None and bool(case.never.any()):
         _place_from_training(case)
     return _finish(case, options)
@@ -194,16 +195,47 @@ def _prepare(data, o: FillOptions) -> _Case:
                  torch.full(missing.shape, float("nan"), dtype=out.dtype, device=out.device))
 
 
-def _solve(case: _Case, o: FillOptions, solve: Callable) -> None:
-    """Solve the markers observed somewhere, window by window, and write their fill (and error
-    estimate) into ``case``."""
-    params, unfit, method = case.params, case.unfit, case.method
+def _solve(case: _Case, o: FillOptions, solve: Callable | None) -> None:
+    """Solve the markers observed somewhere, window by window (:mod:`torchfill.windows`; the
+    later ones in worker processes where that pays and ``solve`` is the default), and write
+    their fill (and error estimate) into ``case``."""
     keep = torch.nonzero(~case.never).flatten()
+    extra = _fit_data(case, o, keep)
+    case.points = None              # long recordings: hold as few full-length copies as we can
+    unfit, todo = case.unfit[:, keep], case.todo[:, keep]
+    plan = windows.plan(unfit.cpu().numpy(), o.window)
+    start = time.perf_counter()
+    case.shown = _progress(o.progress, windows=len(plan.windows), method=case.method)
+    run = _Windows(case, windows.Job(case.method, case.params, extra, len(plan.windows), keep,
+                                     o.return_std, o.constraints), plan, solve)
+    relay = o.progress is not None and o.progress is not False
+    remote = None if solve is not None or case.out.device.type != "cpu" else windows.Remote(
+        lambda a, b: (run.job, *run.cut(a, b), (a, b), run.number(a, b), relay), run.done,
+        case.shown.update)
+    try:
+        windows.blend(plan, unfit, run.one, emit=run.write, remote=remote,
+                      workers=1 if case.out.device.type != "cpu" else o.workers)
+    except BaseException:
+        case.shown.close()                      # no half-drawn bar before the error line
+        raise
+    case.info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
+    std, stds, anchors = case.std, run.stds, run.anchors
+    if len(stds) == len(plan.windows):      # every window has an estimate
+        part = windows.blend(plan, unfit, lambda a, b: stds[a, b][..., None])[..., 0]
+        std[:, keep] = torch.where(todo, part.to(std), std[:, keep])
+    if len(anchors) == len(plan.windows):
+        part = windows.blend(plan, unfit, lambda a, b: anchors[a, b][..., None].float())
+        case.anchored = torch.zeros_like(case.todo)
+        case.anchored[:, keep] = todo & (part[..., 0] > 0.5)
+
+
+def _fit_data(case: _Case, o: FillOptions, keep: torch.Tensor) -> dict:
+    """The fit data the solver declares (segments, the post-step, training) for markers ``keep``."""
     kept_segments = None
     if case.seg_idx is not None:
         at = {int(j): i for i, j in enumerate(keep.tolist())}
         kept_segments = {s: [at[j] for j in m if j in at] for s, m in case.seg_idx.items()}
-    takes, extra = case.solver.fit_data, {}              # the solver's declared fit data
+    takes, extra = case.solver.fit_data, {}
     if kept_segments is not None and "segments" in takes:
         extra["segments"] = kept_segments
     if o.constraints and "post" in takes:                 # auto scores fills as they come out
@@ -211,50 +243,67 @@ def _solve(case: _Case, o: FillOptions, solve: Callable) -> None:
     if case.training is not None:
         extra["training"] = [t.to(case.work or t.dtype) for t in align_training(
             case.training, case.data, keep.tolist(), case.points.shape[1])]
-    case.points = None              # long recordings: hold as few full-length copies as we can
-    out, todo = case.out, case.todo     # out: the input, NaN at ``mask`` (within ``unfit``):
-    whole = len(keep) == out.shape[1]   # the windows read their input from it, and their
-                                        # blended fill is written into it as it comes
-    plan = windows.plan(unfit[:, keep].cpu().numpy(), o.window)
-    start = time.perf_counter()
-    stds, anchors = {}, {}
-    index = {w: k for k, w in enumerate(plan.windows)}
-    case.shown = shown = _progress(o.progress, windows=len(index), method=method)
+    return extra
 
-    def one(a: int, b: int) -> torch.Tensor:
-        X = torch.where(unfit[a:b, keep, None], torch.nan, out[a:b, keep])
-        part = _fill_window(o, params, extra, X.to(case.work or X.dtype), unfit[a:b, keep],
-                            shown, case.info, stds, (a, b), (index[a, b] + 1, len(index)),
-                            solve, keep, anchors)
-        if len(index) > 1:              # the next window is other data: what this one kept
+
+class _Windows:
+    """The windows of one fill: each reads its input from ``case.out`` (the input, NaN at
+    ``mask``), and the blended fill is written back into it as frames become final."""
+
+    def __init__(self, case: _Case, job: windows.Job, plan: windows.Plan, solve) -> None:
+        self.case, self.job, self.solve = case, job, solve
+        self.index = {w: k + 1 for k, w in enumerate(plan.windows)}
+        self.keep, self.whole = job.markers, len(job.markers) == case.out.shape[1]
+        self.stds, self.anchors, self.warned = {}, {}, {}
+
+    def number(self, a: int, b: int) -> int:
+        return self.index[a, b]
+
+    def cut(self, a: int, b: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """A window's input (NaN where the solver does not look) and what it does not see."""
+        unfit = self.case.unfit[a:b, self.keep]
+        X = torch.where(unfit[..., None], torch.nan, self.case.out[a:b, self.keep])
+        return X.to(self.case.work or X.dtype), unfit
+
+    def take(self, a: int, b: int, got: windows.Solved) -> torch.Tensor:
+        """A window's fit: its iterations and choice (the next windows reuse it), its error
+        estimate and anchors kept for their blends; its fill."""
+        self.case.shown.window_done(self.index[a, b], got.n_iter)
+        with _LOCK:                                 # windows may be solved in threads
+            self.job.params.update(got.carry)
+            self.case.info["n_iter"] += got.n_iter
+        if got.std is not None:
+            self.stds[a, b] = got.std
+        if got.anchored is not None:
+            self.anchors[a, b] = got.anchored
+        return got.fill
+
+    def one(self, a: int, b: int) -> torch.Tensor:
+        """A window solved in this process."""
+        got = windows.fit(self.job, *self.cut(a, b), (a, b), self.index[a, b],
+                          self.case.shown.update, self.solve)
+        if len(self.index) > 1:         # the next window is other data: what this one kept
             clear_kept()                # for a repeat, and its freed temporaries, go back
             trim_heap()
-        return part
+        return self.take(a, b, got)
 
-    def write(a: int, b: int, values: torch.Tensor) -> None:
+    def done(self, a: int, b: int, result) -> torch.Tensor:
+        """A window a worker process solved (:func:`windows.fit_remote`)."""
+        got, caught = result
+        windows.warn_again(caught, self.warned)
+        if isinstance(got, Exception):
+            raise got
+        return self.take(a, b, got)
+
+    def write(self, a: int, b: int, values: torch.Tensor) -> None:
         """Blended frames, final: into the missing samples of ``out`` (the windows still
         running read frames from ``b`` on)."""
-        rows = out[a:b] if whole else out[a:b, keep]
-        new = todo[a:b, keep, None] & ~torch.isfinite(rows)
+        out, keep = self.case.out, self.keep
+        rows = out[a:b] if self.whole else out[a:b, keep]
+        new = self.case.todo[a:b, keep, None] & ~torch.isfinite(rows)
         rows[new] = values[new].to(out.dtype)
-        if not whole:
+        if not self.whole:
             out[a:b, keep] = rows
-
-    try:
-        windows.blend(plan, unfit[:, keep], one, emit=write,
-                      workers=1 if out.device.type != "cpu" else o.workers)
-    except BaseException:
-        shown.close()                           # no half-drawn bar before the error line
-        raise
-    case.info.update(seconds=time.perf_counter() - start, windows=len(plan.windows))
-    std = case.std
-    if len(stds) == len(plan.windows):      # every window has an estimate
-        part = windows.blend(plan, unfit[:, keep], lambda a, b: stds[a, b][..., None])[..., 0]
-        std[:, keep] = torch.where(todo[:, keep], part.to(std), std[:, keep])
-    if len(anchors) == len(plan.windows):
-        part = windows.blend(plan, unfit[:, keep], lambda a, b: anchors[a, b][..., None].float())
-        case.anchored = torch.zeros_like(todo)
-        case.anchored[:, keep] = todo[:, keep] & (part[..., 0] > 0.5)
 
 
 def _finish(case: _Case, o: FillOptions):
@@ -436,50 +485,3 @@ def _progress(progress, **kw):
         return Silent()
     from .progress import make
     return make(progress, **kw)
-
-
-def _fill_window(o: FillOptions, params: dict, extra: dict, X: torch.Tensor,
-                 missing: torch.Tensor, progress, info: dict, stds: dict, key: tuple[int, int],
-                 number: tuple[int, int], solve: Callable, markers: torch.Tensor,
-                 anchors: dict) -> torch.Tensor:
-    """Solve one window: a fresh solver of ``o.method`` with ``params`` fitted to ``X`` (NaN
-    where ``missing``; ``extra``: fit data such as ``training``); returns its fill and adds its
-    iterations to ``info``. Per-window steps (``auto``'s choice) belong here; the constraints run
-    once, on the whole recording. ``stds``: receives the window's error estimate (T, J) under its
-    frame range ``key`` (the solver's ``std_`` -- ``auto`` -- or, with ``o.return_std``, the
-    method's hold-out error by gap kind); ``number``: (this window, windows)."""
-    method, (window, windows) = o.method, number
-    solver = get_solver(method, **params)
-    where = {"window": window, "windows": windows, "max_iter": solver.max_iter}
-    (solve or _fit)(solver, X, missing, extra, lambda d: progress.update({**where, **d}),
-                    (slice(*key), markers))
-    filled = solver.transform(X)
-    progress.window_done(window, solver.n_iter_)
-    with _LOCK:                                 # windows may be solved in threads
-        params.update(solver.carry())           # the next window reuses what this one chose
-        info["n_iter"] += solver.n_iter_
-    est = getattr(solver, "std_", None)
-    if est is not None or o.return_std:
-        if est is None:
-            est = holdout_std(method, params, X, missing, seed=solver.seed,
-                              post=constrain_candidates if o.constraints else None, **extra)
-        stds[key] = est.to(filled.dtype)
-    if getattr(solver, "anchored_", None) is not None:
-        anchors[key] = solver.anchored_
-    return filled
-
-
-def _fit(solver, X: torch.Tensor, missing: torch.Tensor, data: dict, callback, part) -> None:
-    """The default ``solve`` of :func:`fill_case`: the solver's own loop."""
-    solver.fit(X, missing, callback=callback, **data)
-
-
-def holdout_std(method: str, params: dict, X: torch.Tensor, missing: torch.Tensor, seed: int = 0,
-                post=None, **data) -> torch.Tensor:
-    """Error estimate (T, J) for a fill by ``method`` (one that has no own): ``auto`` run with that
-    method as its only candidate, i.e. the method's held-out error on gaps of each kind.
-    ``data``: the method's fit data (``training=``); ``post``: the post-step, as fill()'s."""
-    solver = get_solver("auto", candidates=(method,), candidate_params={method: dict(params)},
-                        seed=seed)
-    solver.fit(X, missing, post=post, **data)
-    return solver.std_

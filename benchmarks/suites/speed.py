@@ -4,9 +4,12 @@
 markers, 120 Hz) played forward and backward to each length, so the motion stays continuous and
 one subject's marker distances hold throughout; every 3 000-frame block gets the Tucker paper's
 gaps (``gaps.multi_gap``: 20 markers, up to 5 gaps each) of a random length in 100..200 frames,
-so the gap density is the same at every length. Each length runs in a fresh process (peak RSS
-from ``resource.getrusage``); besides the time and the RMSE, the error estimate's checks
-(per-gap Spearman of estimated vs real error, share of filled coordinates within 2 std).
+so the gap density is the same at every length. Each length runs in a fresh process: its peak
+RSS (``resource.getrusage``), the largest peak of its children (the worker processes of the
+later windows) and the largest sum of all their resident sizes (:class:`Resident`), the CPU
+seconds of the process and of its children; besides the time and the RMSE, the error
+estimate's checks (per-gap Spearman of estimated vs real error, share of filled coordinates
+within 2 std).
 ``--device cuda`` hands the fill a torch tensor on that device (the time then includes the copies).
 
 ``--methods A,B`` instead times each method ``--repeat`` times on the first 3 000 frames of that
@@ -20,9 +23,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -65,22 +70,87 @@ def one(frames: int, method: str | None, window: int | None, device: str | None 
     truth, mask = recording(frames)
     given = np.where(mask[..., None], np.nan, truth)
     del truth                   # a user's process holds the gapped recording alone: the peak
-    start = time.perf_counter()                                 # RSS is the fill's
-    if device is None:
-        out, std = torchfill.fill(given, method, window=window, return_std=True)
-    else:
-        out, std = (t.cpu().numpy() for t in torchfill.fill(
-            torch.from_numpy(given).to(device), method, window=window, return_std=True))
+    start, cpu = time.perf_counter(), _cpu()                    # RSS is the fill's
+    with Resident() as resident:
+        if device is None:
+            out, std = torchfill.fill(given, method, window=window, return_std=True)
+        else:
+            out, std = (t.cpu().numpy() for t in torchfill.fill(
+                torch.from_numpy(given).to(device), method, window=window, return_std=True))
     seconds = time.perf_counter() - start
+    cpu = [now - before for now, before in zip(_cpu(), cpu)]
     truth, _ = recording(frames)
     assert np.array_equal(out[~mask], truth[~mask])
     rho, within, _ = std_checks(out, std, truth, mask)
     return {"frames": frames, "method": method or torchfill.default_method(),
             "window": window, "device": device or "numpy", "seconds": round(seconds, 2),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+            "children_peak_rss_mb": resident.children, "total_peak_rss_mb": resident.total,
+            "cpu_s": round(cpu[0], 1), "children_cpu_s": round(cpu[1], 1),
             "rmse_missing_mm": round(metrics.rmse_missing(out, truth, mask), 2),
             "gap_error_mm": round(metrics.gap_error(out, truth, mask), 2),
             "std_spearman": round(rho, 2), "within_2std": round(within, 3)}
+
+
+class Resident:
+    """Resident memory of this process and its children while it is entered, sampled from /proc
+    every ``every`` seconds: ``children``, the largest child's peak (``VmHWM``: its own, where
+    ``RUSAGE_CHILDREN``'s ``ru_maxrss`` counts what a child shared with this process when it was
+    forked), and ``total``, the largest sum of this process's and its children's resident sizes
+    (MB; 0 without /proc)."""
+
+    def __init__(self, every: float = 0.1):
+        self.every, self.children, self.total = every, 0, 0
+        self.stop = threading.Event()
+
+    def __enter__(self) -> "Resident":
+        self.thread = threading.Thread(target=self._sample, daemon=True)
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop.set()
+        self.thread.join()
+
+    def _sample(self) -> None:
+        me = os.getpid()
+        if not os.path.isdir(f"/proc/{me}/task"):
+            return
+        while not self.stop.wait(self.every):
+            pids = set()                     # a thread's children are listed under it
+            for task in os.listdir(f"/proc/{me}/task"):
+                try:
+                    with open(f"/proc/{me}/task/{task}/children") as f:
+                        pids.update(int(p) for p in f.read().split())
+                except OSError:
+                    pass
+            now = _status(me)["VmRSS"]
+            for pid in pids:
+                kb = _status(pid)
+                now += kb["VmRSS"]
+                self.children = max(self.children, round(kb["VmHWM"] / 1024))
+            self.total = max(self.total, round(now / 1024))
+
+
+def _status(pid: int) -> dict:
+    """``VmRSS`` and ``VmHWM`` of a process in kB (0 once it is gone)."""
+    kb = {"VmRSS": 0, "VmHWM": 0}
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                key = line.split(":")[0]
+                if key in kb:
+                    kb[key] = int(line.split()[1])
+    except OSError:
+        pass
+    return kb
+
+
+def _cpu() -> tuple[float, float]:
+    """CPU seconds (user + system) of this process and of its finished children (the worker
+    processes of a long recording's later windows)."""
+    own, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return own.ru_utime + own.ru_stime, kids.ru_utime + kids.ru_stime
 
 
 def add_arguments(p) -> None:

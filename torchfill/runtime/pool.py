@@ -1,8 +1,12 @@
-"""The one process pool: independent calls (the files of a batch, the cases of an experiment) in
-this process, in worker processes, or as Ray tasks, their results yielded as they finish.
+"""The one process pool: independent calls (the files of a batch, the cases of an experiment, the
+later windows of a long recording) in this process, in worker processes, or as Ray tasks, their
+results yielded as they finish.
 
 Workers are fresh interpreters (``spawn``) started with ``threads`` BLAS/OpenMP threads each and
-blind to a terminal's ^C. A worker that dies (SIGKILL, as the out-of-memory killer sends) costs
+blind to a terminal's ^C. They do not run the caller's ``__main__`` again (a script that fills a
+long recording without an ``if __name__ == "__main__"`` guard is not re-run in each worker): the
+calls are functions of importable modules. Calls and results travel pickled by value (a tensor's
+bytes, never a shared-memory handle); a call may send messages back while it runs (:func:`report`). A worker that dies (SIGKILL, as the out-of-memory killer sends) costs
 only its call: the call is tried once more in a new worker, then handed to ``died``, and the rest
 go on. Closing the generator (or an exception in it: Ctrl-C) stops at once: queued calls are not
 started, running ones get SIGTERM (their writes finish or roll back), and no worker is left.
@@ -11,6 +15,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
 import signal
 import threading
 import time
@@ -22,6 +27,7 @@ from typing import Any
 #: seconds a stopped worker gets to finish a write before it is killed
 STOP_GRACE = 1.5
 THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+_CALL: dict = {"conn": None, "index": None, "lock": threading.Lock()}   # in a worker: the call
 
 
 def imap(func: Callable, args: list[tuple], kwargs: list[dict] | None = None, *,
@@ -43,9 +49,12 @@ def imap(func: Callable, args: list[tuple], kwargs: list[dict] | None = None, *,
         for i, (a, k) in enumerate(zip(args, kwargs)):
             yield i, func(*a, **k)
     else:
-        pool = _Processes(func, min(workers, len(args)), threads, died, cleanup)
-        pool.retried = retried or (lambda i, result, how: result)
-        yield from pool.run(list(zip(args, kwargs)))
+        pool = Processes(func, min(workers, len(args)), threads, died=died, cleanup=cleanup,
+                         retried=retried)
+        try:
+            yield from pool.run(list(zip(args, kwargs)))
+        finally:
+            pool.close()
 
 
 def _ray(func, args, kwargs, address: str) -> Iterator[tuple[int, Any]]:
@@ -75,45 +84,87 @@ def _call(i: int, func, a: tuple, k: dict) -> tuple[int, Any]:
     return i, func(*a, **k)
 
 
-class _Processes:
-    """Worker processes fed one call at a time through a pipe each."""
+def report(message: Any) -> bool:
+    """Inside a call that a worker process runs: send ``message`` to the caller's ``report``
+    (see :meth:`Processes.run`); elsewhere nothing. Whether it was sent."""
+    with _CALL["lock"]:                       # any thread of the call may report
+        if _CALL["conn"] is None:
+            return False
+        _CALL["conn"].send_bytes(pickle.dumps(("report", _CALL["index"], message),
+                                              pickle.HIGHEST_PROTOCOL))
+    return True
 
-    def __init__(self, func, n: int, threads: int, died, cleanup) -> None:
+
+class Processes:
+    """``n`` worker processes fed one call at a time through a pipe each: :meth:`launch` starts
+    them (they import in the background; a thread may launch them), :meth:`run` feeds them,
+    :meth:`close` ends every one (:func:`imap` does all three)."""
+
+    def __init__(self, func, n: int, threads: int, *, died=None, cleanup=None,
+                 retried=None) -> None:
         self.func, self.n, self.threads = func, n, threads
         self.died, self.cleanup = died, cleanup or (lambda i: None)
+        self.retried = retried or (lambda i, result, how: result)
         self.ctx = multiprocessing.get_context("spawn")
+        self.lock = threading.Lock()
+        self.closed = False
         self.idle: list[tuple] = []
         self.busy: dict[int, tuple] = {}            # pid -> (process, conn, index, attempt)
         self.started: list[tuple] = []              # every worker, whatever its state
         self.first_death: dict[int, str] = {}
 
     def start(self) -> tuple:
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()     # first: starting it unblocks SIGINT (_no_sigint)
         parent, child = self.ctx.Pipe()
-        with _threads_env(self.threads), _no_sigint():   # a terminal's ^C is for this process
+        with _THREADS_ENV, _threads_env(self.threads), _no_sigint(), _no_main():
             proc = self.ctx.Process(target=_worker, args=(child, self.func), daemon=True)
             proc.start()
         child.close()
         self.started.append((proc, parent))
         return proc, parent
 
-    def run(self, calls: list[tuple]) -> Iterator[tuple[int, Any]]:
+    def launch(self) -> None:
+        """Start the workers not started yet (none once closed)."""
+        with self.lock:
+            while not self.closed and len(self.started) < self.n:
+                self.idle.append(self.start())
+
+    def run(self, calls, report: Callable[[int, Any], Any] | None = None
+            ) -> Iterator[tuple[int, Any]]:
+        """``(i, func(*a, **k))`` for ``(a, k) = calls[i]``, as they finish; ``calls`` is read
+        when a call is handed out (it may build its arguments then). ``report(i, message)``
+        receives what call ``i`` sends with :func:`report`. Closing the generator ends the
+        workers (as :meth:`close`)."""
         queue = deque((i, 1) for i in range(len(calls)))
+        self.report = report or (lambda i, message: None)
         try:
-            self.idle.extend(self.start() for _ in range(self.n))
+            self.launch()
             while queue or self.busy:
                 self._hand_out(queue, calls)
                 yield from self._collect(queue)
-        finally:           # a worker handed a call a moment ago may be in neither list: all go
-            _stop([w for w in self.started if w not in self.idle], self.idle)
-            for proc, conn, i, attempt in self.busy.values():
-                self.cleanup(i)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """End every worker (see :func:`_stop`); the calls under way are cleaned up."""
+        with self.lock:
+            self.closed = True
+        # a worker handed a call a moment ago may be in neither list: all go
+        _stop([w for w in self.started if w not in self.idle], self.idle)
+        self.started, self.idle = [], []
+        for proc, conn, i, attempt in self.busy.values():
+            self.cleanup(i)
+        self.busy = {}
 
     def _hand_out(self, queue: deque, calls: list[tuple]) -> None:
         while queue and self.idle:
             proc, conn = self.idle.pop()
             i, attempt = queue.popleft()
             try:
-                conn.send((i, *calls[i]))
+                conn.send_bytes(pickle.dumps((i, *calls[i]), pickle.HIGHEST_PROTOCOL))
             except OSError:                         # died while idle: replace it
                 proc.join()
                 queue.appendleft((i, attempt))
@@ -130,16 +181,20 @@ class _Processes:
             proc, conn, i, attempt = self.busy[pid]
             if conn not in ready and proc.sentinel not in ready:
                 continue
-            del self.busy[pid]
             try:
-                reply = conn.recv() if conn in ready else None
+                reply = pickle.loads(conn.recv_bytes()) if conn in ready else None
             except (EOFError, OSError):
                 reply = None
+            if reply is not None and reply[0] == "report":
+                self.report(i, reply[2])
+                continue
+            del self.busy[pid]
             if reply is not None:
                 self.idle.append((proc, conn))
+                result = reply[2]
                 if i in self.first_death:
-                    reply = (i, self.retried(i, reply[1], self.first_death[i]))
-                yield reply
+                    result = self.retried(i, result, self.first_death[i])
+                yield i, result
                 continue
             if proc.is_alive():                     # its pipe broke: make sure it is gone
                 proc.kill()
@@ -162,7 +217,7 @@ def _stop(running: list[tuple], idle: list[tuple]) -> None:
     progress finishes or rolls back), whatever is left after ``STOP_GRACE`` seconds is killed."""
     for proc, conn in idle:
         try:
-            conn.send(None)
+            conn.send_bytes(pickle.dumps(None))
         except OSError:
             pass
     for proc, conn in running:
@@ -206,14 +261,19 @@ def _worker(conn, func) -> None:
     try:
         while True:
             try:
-                call = conn.recv()
+                call = pickle.loads(conn.recv_bytes())
             except (EOFError, OSError):
                 return
             if call is None:
                 return
             i, a, k = call
+            with _CALL["lock"]:
+                _CALL.update(conn=conn, index=i)
+            result = func(*a, **k)
+            with _CALL["lock"]:
+                _CALL["conn"] = None
             try:
-                conn.send((i, func(*a, **k)))
+                conn.send_bytes(pickle.dumps(("done", i, result), pickle.HIGHEST_PROTOCOL))
             except OSError:
                 return
     except SystemExit as stop:        # unwound (temporary files removed): skip the slow teardown
@@ -222,17 +282,46 @@ def _worker(conn, func) -> None:
 
 @contextmanager
 def _no_sigint():
-    """Block SIGINT while a worker starts: the worker inherits the blocked signal (and then ignores
-    it), so it never sees a terminal's ^C; a ^C that arrives meanwhile waits and reaches this
-    process once the worker has started (ignoring it here instead lost it: a batch ran on)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    """Block SIGINT in this thread while a worker starts: the worker inherits the blocked signal
+    (and then ignores it), so it never sees a terminal's ^C; a ^C that arrives meanwhile waits
+    and reaches this process once the worker has started, or at once in another thread that
+    does not block it (ignoring it here instead lost it: a batch ran on)."""
     old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+_THREADS_ENV = threading.Lock()         # one worker start at a time changes the environment
+_STARTING = threading.local()           # this thread starts a worker (see _no_main)
+_PATCH = threading.Lock()
+
+
+@contextmanager
+def _no_main():
+    """Leave ``__main__`` out of what a worker started in this thread prepares from (see the
+    module notes): multiprocessing's spawn would otherwise run the caller's script in the worker
+    (as ``__mp_main__``) before the first call. Other threads' processes are left alone."""
+    from multiprocessing import spawn
+
+    with _PATCH:
+        if not getattr(spawn.get_preparation_data, "_torchfill", False):
+            real = spawn.get_preparation_data
+
+            def preparation_data(name):
+                data = real(name)
+                if getattr(_STARTING, "active", False):
+                    data.pop("init_main_from_path", None)
+                    data.pop("init_main_from_name", None)
+                return data
+            preparation_data._torchfill = True
+            spawn.get_preparation_data = preparation_data
+    _STARTING.active = True
+    try:
+        yield
+    finally:
+        _STARTING.active = False
 
 
 @contextmanager

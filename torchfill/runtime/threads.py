@@ -19,6 +19,7 @@ import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -55,8 +56,20 @@ def _mkl_set_num_threads_local() -> Callable[[int], Any] | None:
     return _find("MKL_Set_Num_Threads_Local", [None, *sorted(glob.glob(os.path.join(lib, "libtorch_cpu*")))])
 
 
+@contextmanager
+def serial():
+    """Inside, :func:`thread_map` runs in the calling thread, as it does inside another
+    ``thread_map``'s worker (a window in a worker process fits as a window thread does)."""
+    before = getattr(_INSIDE, "active", False)
+    _INSIDE.active = True
+    try:
+        yield
+    finally:
+        _INSIDE.active = before
+
+
 def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None,
-               cost: Callable[[Any], float] | None = None) -> Iterator:
+               cost: Callable[[Any], float] | None = None, share: int | None = None) -> Iterator:
     """``fn(item)`` for every item, yielded in the items' order whatever finishes first.
 
     ``cost``: the item's expected time; the costliest start first (longest-processing-time
@@ -65,9 +78,9 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
     last of nine to start).
 
     ``workers`` at a time (None: ``torch.get_num_threads()``, also the most), each worker thread
-    on ``torch.get_num_threads() // workers`` intra-op threads, set in that thread only (no
-    process-wide change: other threads of the program keep their count); with one worker, one
-    item or inside another ``thread_map``, in this thread. The caller's warning filters are
+    on ``share`` (default: ``torch.get_num_threads() // workers``) intra-op threads, set in that
+    thread only (no process-wide change: other threads of the program keep their count); with
+    one worker, one item or inside another ``thread_map`` (or :func:`serial`), in this thread. The caller's warning filters are
     restored afterwards: ``warnings.catch_warnings`` in two threads at once can leave them changed.
     """
     items = list(items)
@@ -76,7 +89,7 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
     if workers <= 1 or getattr(_INSIDE, "active", False):
         yield from map(fn, items)
         return
-    share = max(1, threads // workers)
+    share = share or max(1, threads // workers)
     setters = [f for f in (_omp_set_num_threads(), _mkl_set_num_threads_local()) if f is not None]
 
     def run(item):
