@@ -233,8 +233,9 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     filled here.
 
     A gap that the fill left out whole (both edges observed) is filled where two mates are seen
-    in all of its frames (:func:`_two_mates`); those samples are no bridge: they carry their
-    own error estimate and go to ``auto`` and the donors like a three-mate fit."""
+    in all of its frames, with its own error estimate (:func:`_two_mates`); like a bridge, such
+    a fill is the ``rigid`` method's alone: not a donor, not ``auto``'s candidate (the turn about
+    the mates' line is unseen; experiments/results/auto.md)."""
     T = est.shape[0]
     known = seen[:, j] | np.isfinite(est).all(axis=1)
     frame = np.arange(T)
@@ -263,11 +264,10 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     split = np.minimum(s, 1 - s)[:, 0] * norm_last(sides[1] - sides[0])     # the turn unseen
     reach = np.minimum(t - b, a - t)
     err[t] = np.sqrt(anchor ** 2 + curve(reach) ** 2 + split ** 2)
-    if two.any():
-        err[t[two]] = np.sqrt(_two_mates(X, seen, j, M, use[t[two]], reach[two]) ** 2
-                              + split[two] ** 2)
-        two &= np.isfinite(err[t])                         # unmeasured: a bridge
-    bridged[t[~two]] = True
+    if two.any():                                          # unmeasured: the bridge's error
+        e2 = np.sqrt(_two_mates(X, seen, j, M, use[t[two]], reach[two]) ** 2 + split[two] ** 2)
+        err[t[two]] = np.where(np.isfinite(e2), e2, err[t[two]])
+    bridged[t] = True
     return bridged
 
 
