@@ -171,3 +171,24 @@ def test_code_names_only_scripts_and_modules_that_exist():
             if not ok:
                 broken.append(f"{path.relative_to(ROOT)}: {name}")
     assert not broken, broken
+
+
+MEASURED = re.compile(r"\d(?:\.\d+)?\s*(?:mm|ms|s|°|%|MB|GB|x|×)(?!\w)")
+GENERATED_PART = re.compile(r"<!-- (\w+):start -->.*?<!-- \1:end -->"
+                            r"|<!-- table: [^ ]+ -->.*?<!-- end table -->", re.S)
+
+
+def test_measured_tables_in_docs_are_generated():
+    """A table of docs/ that quotes a measurement (mm, s, °, %, MB, x) is generated from stored
+    rows by ``python -m benchmarks docs`` (between its block markers); measurements of earlier
+    code live in experiments/results/. A table of definitions (``| column | meaning |``) may
+    name the thresholds it defines."""
+    quoted = []
+    for page in sorted((ROOT / "docs").glob("*.md")):
+        text = GENERATED_PART.sub("", page.read_text(encoding="utf-8"))
+        for table in re.finditer(r"(?:^\|.*\n)+", text, re.M):
+            lines = table.group(0).splitlines()
+            if lines[0].replace(" ", "") == "|column|meaning|":
+                continue
+            quoted += [f"{page.name}: {line[:80]}" for line in lines if MEASURED.search(line)][:1]
+    assert not quoted, quoted
