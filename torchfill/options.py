@@ -102,9 +102,10 @@ class FillOptions:
         -- else float64). Only the filled samples come from that computation: the observed ones
         and the output's dtype are the input's.
     workers : int, optional
-        Windows solved at once, in threads that share torch's intra-op threads out (default and
-        most: that thread count, ``torch.get_num_threads()``; on CPU only; see
-        :func:`torchfill.runtime.threads.thread_map`). The first window runs alone and the fills blend in
+        Windows solved at once, each on its share of torch's intra-op threads (default and most:
+        that thread count, ``torch.get_num_threads()``, and the cores; on CPU only): in worker
+        processes where a long recording has two or more later windows, else in threads (see
+        :mod:`torchfill.windows`). The first window runs alone and the fills blend in
         window order, so a fill does not depend on which window finishes first; it does depend on
         the threads per window, which change how float32 sums round (accuracy the same).
     reject : float, optional
