@@ -29,8 +29,9 @@ than a rigid fill with another model's pieces in it (the ``rigid`` method; ``aut
 candidate and the rigid donors of :mod:`torchfill.constraints` leave such samples out). A gap with
 two mates seen in every frame and none with three is carried so from its two observed edges (the
 turn about the mates' line taken from each edge, blended across the gap), with its own error
-estimate: the hold-out error of carrying ``j`` by those two mates alone; these samples are a fill
-like a three-mate one. Elsewhere (one mate or none) the sample is left NaN for other models.
+estimate: the hold-out error of carrying ``j`` by those two mates alone; like the carries above,
+these samples are the ``rigid`` method's alone. Elsewhere (one mate or none) the sample is left
+NaN for other models.
 
 **Rigid pairs** (:func:`rigid_pairs`) are the near-neighbour pairs whose distance is nearly
 constant (robust spread ``<= tol x`` the body's size); :mod:`torchfill.constraints` keeps their
