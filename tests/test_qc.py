@@ -487,7 +487,15 @@ def test_qc_without_std_flags_every_gap_the_fill_flagged(name, recording, tmp_pa
 
 
 def _json_rows(seq, back, found):
-    """The JSON rows of ``qc --json`` as gap rows (index, frames as indices, verdict)."""
-    first = int(seq.first_frame or 0)
-    return [{"j": seq.labels.index(r["marker"]), "start": r["first_frame"] - first,
-             "stop": r["last_frame"] - first + 1, "verdict": r["verdict"]} for r in found]
+    """The JSON rows of ``qc --json`` as gap rows (index, frames as indices, verdict); a label
+    that several markers share (walking_hybrid_2's three ``L_THIGH_3``) goes to the first of them
+    missing there that no earlier row of the same frames took."""
+    first, taken, rows = int(seq.first_frame or 0), set(), []
+    for r in found:
+        start = r["first_frame"] - first
+        j = next(j for j, label in enumerate(seq.labels) if label == r["marker"]
+                 and seq.mask[start, j] and (j, start) not in taken)
+        taken.add((j, start))
+        rows.append({"j": j, "start": start, "stop": r["last_frame"] - first + 1,
+                     "verdict": r["verdict"]})
+    return rows
