@@ -156,7 +156,7 @@ class Segments(OrderedDict):
         X = np.asarray(X, dtype=np.float64)
         J = X.shape[1]
         labels = [str(x) for x in labels] if labels is not None else [str(j) for j in range(J)]
-        stats = pair_stats(X, observed, neighbours=neighbours)
+        stats = pair_stats(X, observed, neighbours=neighbours, orientation=False)
         groups = _cluster(J, stats, min_size)
         out = cls(((f"cluster{i + 1}", [labels[j] for j in g]) for i, g in enumerate(groups)),
                   source="data")
@@ -421,10 +421,12 @@ class PairStats:
 
 
 def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = None, *,
-               neighbours: int = NEIGHBOURS, min_frames: int = 20) -> PairStats:
+               neighbours: int = NEIGHBOURS, min_frames: int = 20,
+               orientation: bool = True) -> PairStats:
     """:class:`PairStats` of ``pairs`` (default: :func:`neighbour_pairs`) over at most
     ``PAIR_FRAMES`` evenly spaced frames, a block of pairs at a time. Pairs seen together in fewer
-    than ``min_frames`` frames get NaN statistics."""
+    than ``min_frames`` frames get NaN statistics. ``orientation=False``: no ``direction`` and
+    ``cone`` (None; half of the time: what the segments and the rigid fill's weights need)."""
     X = np.asarray(X, dtype=np.float64)
     if observed is None:
         observed = np.isfinite(X).all(axis=2)
@@ -439,8 +441,9 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     obs = np.ascontiguousarray(observed[::stride].T)              # (J, T): gathers copy rows
     T = obs.shape[1]
     n = j.size
-    med, mad, wide, cone = (np.full(n, np.nan) for _ in range(4))
-    direction = np.full((n, X.shape[2]), np.nan)
+    med, mad, wide = (np.full(n, np.nan) for _ in range(3))
+    cone = np.full(n, np.nan) if orientation else None
+    direction = np.full((n, X.shape[2]), np.nan) if orientation else None
     count = np.zeros(n, np.int64)
     block = max(1, PAIR_BLOCK // max(T, 1))
     for a in range(0, n, block):
@@ -459,7 +462,8 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
         wide[a:a + block] = np.where(keep, w, np.nan)
-        direction[a:a + block], cone[a:a + block] = _orientation(V, D, c, keep)
+        if orientation:
+            direction[a:a + block], cone[a:a + block] = _orientation(V, D, c, keep)
         count[a:a + block] = c
     return PairStats(j, k, med, mad, wide, count, X.shape[1], direction, cone)
 
@@ -492,20 +496,25 @@ def _orientation(V: np.ndarray, D: np.ndarray, c: np.ndarray, keep: np.ndarray):
         np.divide(V, D, out=np.moveaxis(U, -1, 0), where=fin)
         m = U.sum(axis=0)
         m /= np.linalg.norm(m, axis=-1, keepdims=True)
-        angle = np.arccos(np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0))
-        angle[~fin] = np.nan
-        cone = _col_quantile(_sort_cols(angle), c, 0.95)
+        turn = np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0)
+        np.negative(turn, out=turn)             # -cos: in the angles' order (arccos falls)
+        turn[~fin] = np.nan
+        cone = _col_quantile(_sort_cols(turn), c, 0.95, lambda x: np.arccos(-x))
     return np.where(keep[:, None], m, np.nan), np.where(keep, cone, np.nan)
 
 
-def _col_quantile(S: np.ndarray, n: np.ndarray, q: float) -> np.ndarray:
+def _col_quantile(S: np.ndarray, n: np.ndarray, q: float, f=None) -> np.ndarray:
     """``np.nanquantile(D, q, axis=0)`` (linear) from ``S = np.sort(D, axis=0)`` (NaNs last)
-    and the finite counts ``n`` per column, without numpy's per-column loop (NaN where n = 0)."""
+    and the finite counts ``n`` per column, without numpy's per-column loop (NaN where n = 0).
+    ``f``: a non-decreasing map, the quantile of ``f(D)`` from the two order statistics of
+    ``D`` it needs (``f`` applied to two values a column, not to all of ``D``)."""
     p = q * np.maximum(n - 1, 0)
     lo = np.floor(p).astype(np.int64)
     hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
     a = np.take_along_axis(S, lo[None], axis=0)[0]
     b = np.take_along_axis(S, hi[None], axis=0)[0]
+    if f is not None:
+        a, b = f(a), f(b)
     return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
 
 

@@ -485,7 +485,8 @@ def _tasks(X, seen, members: dict, min_mates: int) -> list:
     if not pairs:
         return []
     uniq = np.unique(np.concatenate(pairs), axis=0)
-    stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3)
+    stats = _segments.pair_stats(X, seen, (uniq[:, 0], uniq[:, 1]), min_frames=3,
+                                 orientation=False)
     tasks = []
     for si, m in enumerate(members.values()):
         if m.size <= min_mates:
@@ -619,12 +620,17 @@ class Rigid(OneShotSolver):
         self.rigid_done_ = done
         self.std_ = torch.from_numpy(std).to(self.M_) * self.sigma_        # in the data's units
         R = torch.from_numpy(est).to(self.M_)
-        T = X.shape[0]
-        if self.fallback:
-            base = Pchip()._interpolate(self.M_.reshape(T, -1), self.Omega_.reshape(T, -1))
+        if self.fallback:               # PCHIP of the markers it fills only (each column alone)
+            base = self.M_.clone()
+            cols = torch.nonzero((~seen & ~done).any(dim=0))[:, 0]
+            if cols.numel():
+                T = X.shape[0]
+                base[:, cols] = Pchip()._interpolate(
+                    self.M_[:, cols].reshape(T, -1),
+                    self.Omega_[:, cols].reshape(T, -1)).reshape(T, cols.numel(), -1)
         else:
             base = torch.full_like(self.M_, float("nan"))
-        self.X_ = torch.where(done[..., None], R, base.reshape(self.M_.shape))
+        self.X_ = torch.where(done[..., None], R, base)
         missing = int((~seen).sum())
         left = (~seen & ~done).sum(dim=0)
         fallback = int(left.sum())
