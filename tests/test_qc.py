@@ -315,6 +315,31 @@ def test_a_short_gap_on_its_interpolation_is_not_flagged_on_a_large_estimate_alo
     assert any("estimated error" in r for r in off["reasons"])
 
 
+def test_a_short_gap_filled_by_the_interpolation_itself_is_judged_on_its_estimate():
+    """A 0.05 s interior gap whose fill is the interpolation across it (what the default's
+    finishing step leaves where its fill departed from it) has no second fill to agree with:
+    an estimate of 20 mm flags it, where the same estimate on a fill within ``AGREE_MM`` (but
+    not on the interpolation) does not."""
+    from torchfill.qc.finish import short_gap_fallback
+
+    X = loose()
+    gappy = X.copy()
+    gappy[100:105, 2] = gappy[200:205, 3] = np.nan
+    off = X.copy()
+    off[100:105, 2] += np.array([20.0, 0.0, 0.0])
+    filled, changed, _ = short_gap_fallback(gappy, off, 100.0)
+    assert changed == [(2, 100, 105)]
+    std = np.where(np.isnan(gappy).any(axis=2), 20.0 / np.sqrt(3), np.nan)
+    for j in (0, 1, 5):                   # the recording's other gaps: estimated 0.5 mm
+        gappy[20:25, j] = gappy[250:255, j] = np.nan
+        std[20:25, j] = std[250:255, j] = 0.5 / np.sqrt(3)
+    rows = rows_by_start(qc.gap_table(gappy, filled, 100.0, std=std, units="mm"))
+    same, near = rows[("2", 100)], rows[("3", 200)]
+    assert same["disagree"] <= qc.SAME_MM < near["disagree"] <= qc.AGREE_MM
+    assert same["verdict"] == "check" and any("estimated error" in r for r in same["reasons"])
+    assert near["verdict"] == "ok"
+
+
 def test_untested_names_the_filled_samples_of_markers_without_an_observed_step():
     """A marker seen only in isolated frames is untested where the fill has an estimate; one seen
     in two consecutive frames, one never seen, and samples without an estimate are not."""

@@ -12,7 +12,7 @@ import torch
 from .metrics import gap_runs
 from .qc import EST_CHECK_MM, alone, untested
 from .qc import per_mm as qc_per_mm
-from .qc.finish import short_gap_fallback, std_bound
+from .qc.finish import finish
 from .sequence import MarkerSequence, per_mm
 
 
@@ -124,10 +124,9 @@ def short_gaps_and_bound(out: torch.Tensor, std: torch.Tensor, missing: torch.Te
     (:mod:`torchfill.qc.finish`); observed coordinates (``own``) stay bit for bit."""
     X = torch.where(missing[..., None], float("nan"), out).cpu().numpy()
     seq = isinstance(data, MarkerSequence)
-    F, changed = short_gap_fallback(X, out.cpu().numpy(), data.rate if seq else None,
-                                    qc_per_mm(data.units if seq else "mm", X.shape[2]))
+    F, S, changed = finish(X, out.cpu().numpy(), std.cpu().numpy(), data.rate if seq else None,
+                           qc_per_mm(data.units if seq else "mm", X.shape[2]))
     info["short_gaps"] = len(changed)
     if changed:
         out = torch.where(own, out, torch.as_tensor(F, dtype=out.dtype, device=out.device))
-    bound = torch.as_tensor(std_bound(X, F), dtype=std.dtype, device=std.device)
-    return out, torch.minimum(std, bound)
+    return out, torch.as_tensor(S, dtype=std.dtype, device=std.device)

@@ -74,6 +74,10 @@ DISAGREE_MM = 8.0
 #: it is not flagged on its estimated error alone: two independent fills agree
 #: (experiments/results/qc.md).
 AGREE_MM = 2.0
+#: A fill within this RMS distance (mm) of the interpolation across a short interior gap is that
+#: interpolation (the default's finishing step puts it there; a C3D stores it in float32): there
+#: are not two fills to agree, and the gap is judged on its estimate alone.
+SAME_MM = 0.01
 #: Seconds of time-only extrapolation at a trial end above which a gap is ``check`` (within the
 #: default 0.25 s limit such gaps are listed with the reason but judged on their estimate;
 #: experiments/results/qc.md).
@@ -94,6 +98,7 @@ class Thresholds:
     est_check: float        # absolute part of the estimated-error test
     disagree: float         # short interior gaps: largest RMS departure from the interpolation
     agree: float            # short interior gaps: the estimate is overruled within this departure
+    same: float             # ... but not within this one: the fill is the interpolation
     est_relative: float     # EST_RELATIVE x the median gap estimate (NaN without std)
     est_reject: float
     step_cap: float         # the recording's step cap (constraints)
@@ -123,7 +128,8 @@ class Thresholds:
                f"{self.end_step_cap:.4g} {u}): check; above the step cap: reject",
                f"interior gaps up to {SHORT_SECONDS:g} s: fill departs from the interpolation "
                f"across the gap by > {self.disagree:.4g} {u} RMS: check; within "
-               f"{self.agree:.4g} {u}: not flagged on the estimated error"]
+               f"{self.agree:.4g} {u} (and not on it, beyond {self.same:.4g} {u}): not flagged on "
+               "the estimated error"]
         if self.dims == 3:
             out.append(f"rigid-partner distance off by > {self.rigid_check:g} x the pair's "
                        f"observed spread: check; > {self.rigid_reject:g} x: reject")
@@ -152,7 +158,7 @@ def thresholds(units: str, per: float, step_cap: float, bounds, median_est: floa
                rate: float | None = None, dims: int = 3) -> Thresholds:
     """The constants of this module in a recording's units."""
     return Thresholds(units=units, per_mm=per, est_check=EST_CHECK_MM * per,
-                      disagree=DISAGREE_MM * per, agree=AGREE_MM * per,
+                      disagree=DISAGREE_MM * per, agree=AGREE_MM * per, same=SAME_MM * per,
                       est_relative=EST_RELATIVE * median_est, est_reject=EST_REJECT_MM * per,
                       step_cap=step_cap, step_at=STEP_AT_CAP * step_cap,
                       end_step_cap=step_cap * END_STEP_FACTOR / STEP_FACTOR,
@@ -254,7 +260,7 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
         flag(2, "left unfilled")
         return VERDICTS[level], reasons
     est, dis = row["est_rmse"], row.get("disagree", math.nan)
-    if np.isfinite(est) and np.isfinite(dis) and dis <= th.agree and (
+    if np.isfinite(est) and np.isfinite(dis) and th.same < dis <= th.agree and (
             est > th.est_reject or est > th.est_check and not est <= th.est_relative):
         reasons.append(f"estimated error {est:.3g} {u}, but the fill stays within {dis:.3g} {u} "
                        f"of the interpolation across this short gap (<= {th.agree:.3g} {u})")
@@ -334,12 +340,14 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
     support = donors | (np.asarray(support, dtype=bool) if support is not None else False)
     if spatial:
         support = support | (observed.sum(axis=1) >= SPATIAL_MIN)[:, None]
+    given = std
     if std is not None and donors.any():
         # the constraints put the rigid-donor fill at these samples, used only where its
         # hold-out error is at most tol x scale (3-D RMS): that bounds their error
         std = np.asarray(std, dtype=np.float64)
         std = np.where(donors & np.isfinite(std),
                        np.minimum(std, pairs.tol * pairs.scale / np.sqrt(D)), std)
+    per = per_mm(units, D, scale)
     cap = metrics.step_limit(F, observed, q=STEP_PERCENTILE, factor=STEP_FACTOR) \
         if observed.any() else np.inf
     bounds = metrics.volume(X, observed, VOLUME_MARGIN) if observed.any() else \
@@ -350,14 +358,16 @@ def gap_table(points, filled, rate: float | None = None, names=None, std=None, *
         if missing[:, j].all():
             continue
         row = _gap_row(X, F, j, a, b, rate, names, partners.get(int(j)), support, bounds, black)
-        row["est_rmse"] = est_rmse(std, j, a, b, D)
+        # a short gap filled by the interpolation across it holds no rigid-donor fill
+        on_interpolation = row["disagree"] <= SAME_MM * per
+        row["est_rmse"] = est_rmse(given if on_interpolation else std, j, a, b, D)
         if donors[a:b, j].any() and len(seg_names.get(int(j), [])) == 1:
             row["segment"] = seg_names[int(j)][0]          # the one segment that can hold it
         row["first_frame"], row["last_frame"] = first_frame + a, first_frame + b - 1
         rows.append(row)
     ests = [r["est_rmse"] for r in rows if np.isfinite(r["est_rmse"])]
     med = float(np.median(ests)) if ests else math.nan
-    th = thresholds(units, per_mm(units, D, scale), cap, bounds, med, rate, D)
+    th = thresholds(units, per, cap, bounds, med, rate, D)
     for row in rows:
         row["verdict"], row["reasons"] = verdict(row, th)
         row["thresholds"] = th
