@@ -179,12 +179,12 @@ GENERATED_PART = re.compile(r"<!-- (\w+):start -->.*?<!-- \1:end -->"
 
 
 def test_measured_tables_in_docs_are_generated():
-    """A table of docs/ that quotes a measurement (mm, s, °, %, MB, x) is generated from stored
+    """A table of docs/ or the README that quotes a measurement (mm, s, °, %, MB, x) is generated from stored
     rows by ``python -m benchmarks docs`` (between its block markers); measurements of earlier
     code live in experiments/results/. A table of definitions (``| column | meaning |``) may
     name the thresholds it defines."""
     quoted = []
-    for page in sorted((ROOT / "docs").glob("*.md")):
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
         text = GENERATED_PART.sub("", page.read_text(encoding="utf-8"))
         for table in re.finditer(r"(?:^\|.*\n)+", text, re.M):
             lines = table.group(0).splitlines()

@@ -166,12 +166,15 @@ BLOCK_SUITES = ("real-gaps", "masks", "ik", "segments", "qc", "session", "speed"
 
 
 def suite_blocks() -> dict[tuple[Path, str], str]:
-    """(page, block key) -> text, from every suite's stored rows."""
+    """(page, block key) -> text, from every suite's stored rows (and the README's blocks,
+    :mod:`benchmarks.readme`)."""
+    from .. import readme
     from . import load
 
     out = {}
     for name in BLOCK_SUITES:
         out.update(getattr(load(name), "doc_blocks", dict)())
+    out.update(readme.doc_blocks())
     return out
 
 

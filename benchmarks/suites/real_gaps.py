@@ -83,20 +83,30 @@ def by_case(rows: list[dict]) -> dict[str, dict[str, dict]]:
     return out
 
 
+def default_ratios(rows: list[dict], names: list[str]) -> dict[str, float]:
+    """Per case the default's RMSE over the best of ``names``' single methods of ours there."""
+    singles = [m for m in names if m != methods.DEFAULT and not methods.is_peer(m)]
+    out = {}
+    for case, got in by_case(rows).items():
+        best = np.nanmin([num(got[m]["rmse"]) if m in got else np.nan for m in singles]
+                         or [np.nan])
+        out[case] = num(got[methods.DEFAULT]["rmse"]) / best \
+            if methods.DEFAULT in got and best > 0 else np.nan
+    return out
+
+
 def case_table(rows: list[dict], names: list[str]) -> str:
     """Per case the RMSE (mm, all hidden samples) of each method, the default's ratio to the
     case's best single method of ours; the means and median CPU seconds."""
-    singles = [m for m in names if m != methods.DEFAULT and not methods.is_peer(m)]
-    body, ratios = [], []
+    ratio = default_ratios(rows, names)
+    ratios = list(ratio.values())
+    body = []
     for case, got in by_case(rows).items():
         val = {m: num(got[m]["rmse"]) if m in got else np.nan for m in names}
-        best = np.nanmin([val[m] for m in singles] or [np.nan]) if singles else np.nan
-        ratio = val.get(methods.DEFAULT, np.nan) / best if best > 0 else np.nan
-        ratios.append(ratio)
         split = next(iter(got.values()))["split"]
         body.append([case + (" (held out)" if split == "held-out" else ""),
                      f"{100 * num(next(iter(got.values()))['trial_end']):.0f}",
-                     *[val[m] for m in names], ratio])
+                     *[val[m] for m in names], ratio[case]])
     cols = {m: [num(r["rmse"]) for r in rows if r["method"] == m] for m in names}
     cpu = {m: [num(r.get("cpu")) for r in rows if r["method"] == m] for m in names}
     body.append(["**mean**", "", *[f"**{np.nanmean(cols[m]):.2f}**" if cols[m] else "—"

@@ -29,10 +29,11 @@ from torchfill.metrics import rmse_missing
 
 from .. import data
 from ..cases import Case, lay, print_cases, select, sources
-from ..rows import Rows
+from ..rows import Rows, num, read_csv
 from ..timing import measure
 from . import case_arguments
 
+RESULTS = data.RESULTS / "session"
 HELP = "a subject's other trials as training: RMSE alone vs with the session, and its time"
 #: Sessions: the trial the gaps are laid onto first, then the subject's other trial(s).
 SESSIONS = {
@@ -96,15 +97,30 @@ def summary(rows: list[dict]) -> str:
     for r in rows:
         lines.append(f"| {r['case']} | {100 * r['trial_end']:.0f} | {r['alone']:.2f} | "
                      f"{r['session']:.2f} | {r['ratio']:.2f} |")
-    end = [r for r in rows if r["trial_end"] >= END_SHARE]
-    ratio = lambda rs: np.mean([r["ratio"] for r in rs]) if rs else np.nan  # noqa: E731
-    mean = lambda rs, k: np.mean([r[k] for r in rs]) if rs else np.nan  # noqa: E731
-    lines += ["", f"{len(rows)} cases; trial-end-dominated ({len(end)}): mean ratio "
-              f"{ratio(end):.2f} (mean RMSE {mean(end, 'alone'):.2f} -> {mean(end, 'session'):.2f} "
-              f"mm); all: mean ratio {ratio(rows):.2f} (mean RMSE {mean(rows, 'alone'):.2f} -> "
-              f"{mean(rows, 'session'):.2f} mm), worst {max(r['ratio'] for r in rows):.2f}; "
-              f"time session / alone {mean(rows, 'session_s') / mean(rows, 'alone_s'):.2f}"]
+    end, every = stats(rows, END_SHARE), stats(rows)
+    lines += ["", f"{every['cases']} cases; trial-end-dominated ({end['cases']}): mean ratio "
+              f"{end['ratio']:.2f} (mean RMSE {end['alone']:.2f} -> {end['session']:.2f} mm); "
+              f"all: mean ratio {every['ratio']:.2f} (mean RMSE {every['alone']:.2f} -> "
+              f"{every['session']:.2f} mm), worst {every['worst']:.2f}; "
+              f"time session / alone {every['session_s'] / every['alone_s']:.2f}"]
     return "\n".join(lines)
+
+
+def stats(rows: list[dict], end_share: float = 0.0) -> dict:
+    """Over the rows with at least ``end_share`` of their hidden samples at trial ends: the
+    number of cases, the means of each column and of the ratio, the worst ratio and how many
+    cases the session makes worse by more than 5 %."""
+    rows = [{k: num(v) for k, v in r.items() if k != "case"} for r in rows]
+    rows = [r for r in rows if r["trial_end"] >= end_share]
+    out = {k: float(np.mean([r[k] for r in rows])) if rows else np.nan
+           for k in ("alone", "session", "ratio", "alone_s", "session_s")}
+    return {**out, "cases": len(rows), "worst": max((r["ratio"] for r in rows), default=np.nan),
+            "worse": sum(r["ratio"] > 1.05 for r in rows)}
+
+
+def stored() -> list[dict]:
+    """The rows kept in experiments/results/session/ (one CSV a session)."""
+    return [r for path in sorted(RESULTS.glob("*.csv")) for r in read_csv(path)]
 
 
 def add_arguments(p) -> None:
