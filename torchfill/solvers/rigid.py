@@ -58,7 +58,7 @@ from ..ops.rotation import kabsch
 from ..runtime.cache import Memo
 from .base import OneShotSolver, Param, register
 from .interp import Pchip
-from .rigid_batch import _drive, _Fit, _Kabsch
+from .rigid_batch import _carry_few, _drive, _Fit, _turn
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
 
 Tensor = torch.Tensor
@@ -127,22 +127,32 @@ def _curve(src, dst, tag, sq, good) -> tuple[np.ndarray, np.ndarray]:
     return mid[three].astype(float), np.maximum.accumulate(rms[three])
 
 
-def _edges(seen, j, M, w, todo, refs, min_mates, shape):
-    """The carries of ``j`` from the nearest reference before and after each ``todo`` frame: the
-    plan ``(todo, b, a, okb, oka)`` for :func:`_blend`, the reach of each frame (to the nearer
-    used edge) and the two carries."""
+def _edges(seen, j, M, w, todo, refs, min_mates):
+    """The nearest reference before and after each ``todo`` frame and whether ``j`` can be
+    carried from it: the plan ``(todo, b, a, okb, oka, w)`` of :func:`_edge_fits` and
+    :func:`_blend`, and the reach of each frame (to the nearer used edge)."""
     pos = np.searchsorted(refs, todo)
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
     a = refs[np.clip(pos, 0, refs.size - 1)]
-    okb, fb = _carry(seen, j, M, w, b, todo, min_mates, shape, valid=pos > 0)
-    oka, fa = _carry(seen, j, M, w, a, todo, min_mates, shape, valid=pos < refs.size)
+    okb = _carry(seen, j, M, w, b, todo, min_mates, valid=pos > 0)[0]
+    oka = _carry(seen, j, M, w, a, todo, min_mates, valid=pos < refs.size)[0]
     reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
-    return (todo, b, a, okb, oka), reach, [fb, fa]
+    return (todo, b, a, okb, oka, w), reach
+
+
+def _edge_fits(seen, j, M, plan, rows, min_mates, shape):
+    """The plan of an :func:`_edges` plan's frames ``rows`` and their two carries (from the
+    reference before, from the one after): each row is its own fit, the same bits whatever
+    the other rows."""
+    todo, b, a, okb, oka = (p[rows] for p in plan[:5])
+    w = plan[5]
+    return (todo, b, a, okb, oka, w), [_carry(seen, j, M, w, e, todo, min_mates, shape, valid=ok)[1]
+                                       for e, ok in ((b, okb), (a, oka))]
 
 
 def _blend(plan, answers) -> np.ndarray:
     """The estimates of an :func:`_edges` plan: its two carries blended linearly in time."""
-    todo, b, a, okb, oka = plan
+    todo, b, a, okb, oka, _ = plan
     eb, ea = _carried(okb, answers[0])[0], _carried(oka, answers[1])[0]
     span = np.maximum(a - b, 1)
     s = np.where(okb & oka, (todo - b) / span, np.where(oka, 1.0, 0.0))[:, None]
@@ -150,12 +160,17 @@ def _blend(plan, answers) -> np.ndarray:
 
 
 def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
-    """Estimate and error (3-D RMS) of marker ``j`` from mates ``M`` at its missing frames.
+    """Which missing frames of marker ``j`` the mates ``M`` estimate, and the error (3-D RMS) of
+    each; the estimates themselves at the frames a bridge starts from (:func:`_bridge`) and at
+    the bridged ones only: the rest waits for :func:`_estimates` at the frames this segment is
+    chosen for (a marker in several segments keeps one segment's fill a sample). Returns
+    ``(frames, estimates (NaN: not yet), error, bridged, plan)``, the plan for
+    :func:`_estimates`.
 
     References are the frames with ``j`` and ``min_mates`` mates observed; a frame whose nearest
     references share fewer than ``min_mates`` observed mates with it is carried instead from the
     nearest frames where all of its observed mates (then all but the least rigid, ...) were seen
-    with ``j``. The fill's carries and the hold-out error curve's go in one request."""
+    with ``j``. The hold-out error curve's carries and the bridges' starts go in one request."""
     T = X.shape[0]
     use = seen[:, M] & (w > 0)
     enough = use.sum(axis=1) >= min_mates
@@ -164,40 +179,46 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     use = use[todo]                 # while the tasks wait on each other: no (T, ...) arrays held
     del enough
     if refs.size == 0:
-        return np.full((T, 3), np.nan), np.full(T, np.nan), np.zeros(T, dtype=bool)
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool), None
     lags = errs = np.zeros(0)
+    plan = None
+    known = seen[:, j].copy()
     if todo.size:
-        parts, good, reach, fits = _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape)
+        parts, source, good, reach = _three_mates(seen, j, M, w, todo, refs, use, min_mates)
+        plan = (parts, source, todo, min_mates, shape)
+        known[todo[good]] = True
+        t, b, a = _holes(known)
+        starts = np.searchsorted(todo, np.setdiff1d(np.r_[b, a], np.flatnonzero(seen[:, j])))
+        pieces, fits = _part_fits(seen, j, M, plan, starts)
         src, dst, tag = _lag_pairs(refs, float(reach[good].max()) if good.any() else 0.0)
         hold, fit = _carry(seen, j, M, w, src, dst, shape=shape, firm=True)
         answers = yield _Fit(fits + [fit])
     est = np.full((T, 3), np.nan)       # (T, ...) arrays made once the wave's fits are done
     err = np.full(T, np.nan)
     if todo.size:
-        e = np.zeros((todo.size, 3))
-        for n, (sel, plan) in enumerate(parts):
-            e[slice(None) if sel is None else sel] = _blend(plan, answers[2 * n:2 * n + 2])
+        est[todo[starts]] = _part_estimates(pieces, answers, starts.size)
         x, kept = _carried(hold, answers[-1])
         lags, errs = _curve(src, dst, tag, np.where(kept, np.nansum(
             (x - X[dst, j]) ** 2, axis=1), 0.0), kept)
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size \
             else np.full(todo.size, np.nan)           # too few observed frames to measure
-        est[todo[good]] = e[good]
         err[todo[good]] = r[good]
-    bridged = yield from _bridge(X, seen, j, M, w, est, err, lambda reach: np.interp(
+    bridged = yield from _bridge(X, seen, j, M, w, est, err, known, lambda reach: np.interp(
         np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
-    return est, err, bridged
+    at = np.flatnonzero(~seen[:, j] & (known | bridged))
+    return at, est[at], err[at], bridged[at], plan
 
 
-def _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape):
+def _three_mates(seen, j, M, w, todo, refs, use, min_mates):
     """:func:`_edges` of the ``todo`` frames from ``refs``; a frame whose nearest references
     share too few mates with it from the nearest frames where all of its observed mates (then
     all but the least rigid, ...) were seen with ``j`` (``use``: those mates, one row per
-    ``todo`` frame). Returns the parts ``(frames or None: all, plan)``, which frames are
-    estimated, their reach, and the parts' carries in order."""
-    plan, reach, fits = _edges(seen, j, M, w, todo, refs, min_mates, shape)
+    ``todo`` frame). Returns the parts ``(frames or None: all, plan)``, the part that estimates
+    each frame (the last that covers it), which frames are estimated and their reach."""
+    plan, reach = _edges(seen, j, M, w, todo, refs, min_mates)
     good = plan[3] | plan[4]
     parts = [(None, plan)]
+    source = np.zeros(todo.size, dtype=np.int64)
     if not good.all():                                   # mates seen there, not at the edges
         left = np.flatnonzero(~good)
         codes = use[left] @ (1 << np.arange(M.size, dtype=np.int64))
@@ -210,16 +231,59 @@ def _three_mates(seen, j, M, w, todo, refs, use, min_mates, shape):
                 if r.size:
                     w_s = np.zeros_like(w)
                     w_s[S] = w[S]
-                    p2, reach[sel], f2 = _edges(seen, j, M, w_s, todo[sel], r, min_mates, shape)
+                    p2, reach[sel] = _edges(seen, j, M, w_s, todo[sel], r, min_mates)
                     good[sel] = p2[3] | p2[4]
+                    source[sel] = len(parts)
                     parts.append((sel, p2))
-                    fits += f2
                     break
                 S = S[:-1]
-    return parts, good, reach, fits
+    return parts, source, good, reach
 
 
-def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
+def _part_fits(seen, j, M, plan, rows):
+    """The carries of the ``todo`` frames ``rows`` (indices) of a :func:`_segment_estimate`
+    plan, each in the part that estimates it: the pieces ``(where in rows, plan)`` of
+    :func:`_part_estimates` and their carries in order."""
+    parts, source, _, min_mates, shape = plan
+    pieces, fits = [], []
+    for n, (sel, part) in enumerate(parts):
+        at = np.flatnonzero(source[rows] == n)
+        if at.size:
+            sub, f = _edge_fits(seen, j, M, part, rows[at] if sel is None
+                                else np.searchsorted(sel, rows[at]), min_mates, shape)
+            pieces.append((at, sub))
+            fits += f
+    return pieces, fits
+
+
+def _part_estimates(pieces, answers, n: int) -> np.ndarray:
+    """The estimates (n, 3) of :func:`_part_fits` from the answers to its carries."""
+    e = np.zeros((n, 3))
+    for i, (at, sub) in enumerate(pieces):
+        e[at] = _blend(sub, answers[2 * i:2 * i + 2])
+    return e
+
+
+def _estimates(seen, j, M, plan, frames):
+    """The estimates (n, 3) of ``j`` at ``frames`` of a :func:`_segment_estimate` plan."""
+    rows = np.searchsorted(plan[2], frames)
+    pieces, fits = _part_fits(seen, j, M, plan, rows)
+    answers = (yield _Fit(fits)) if fits else []
+    return _part_estimates(pieces, answers, rows.size)
+
+
+def _holes(known):
+    """The frames ``t`` not ``known`` between two known ones, and the known frame before (``b``)
+    and after (``a``) each."""
+    T = known.size
+    frame = np.arange(T)
+    before = np.maximum.accumulate(np.where(known, frame, -1))
+    after = np.minimum.accumulate(np.where(known, frame, T)[::-1])[::-1]
+    t = np.flatnonzero(~known & (before >= 0) & (after < T))
+    return t, before[t], after[t]
+
+
+def _bridge(X, seen, j, M, w, est, err, known, curve) -> np.ndarray:
     """Fill, in place, the frames of a gap of ``j`` that the rigid fill left out (fewer than three
     mates observed there) between two frames where ``j`` is known (observed or estimated), one of
     them estimated: ``j`` carried from each of the two by the mates observed in both
@@ -230,20 +294,16 @@ def _bridge(X, seen, j, M, w, est, err, curve) -> np.ndarray:
     thigh and shank markers jumped 100-330 mm where they met the rest of the fill. The error adds
     in quadrature the anchors' larger estimate, the hold-out ``curve`` at the reach to the nearer
     anchor and the two sides' disagreement times the blend's weight on the farther side (the
-    turn about the mates' line that two mates do not see). Returns the bool (T,) of the frames
-    filled here.
+    turn about the mates' line that two mates do not see). ``known``: the frames where ``j`` is
+    observed or estimated (``est`` holds the estimates the bridges start from). Returns the bool
+    (T,) of the frames filled here.
 
     A gap that the fill left out whole (both edges observed) is filled where two mates are seen
     in all of its frames, with its own error estimate (:func:`_two_mates`); like a bridge, such
     a fill is the ``rigid`` method's alone: not a donor, not ``auto``'s candidate (the turn about
     the mates' line is unseen; experiments/results/auto.md)."""
     T = est.shape[0]
-    known = seen[:, j] | np.isfinite(est).all(axis=1)
-    frame = np.arange(T)
-    before = np.maximum.accumulate(np.where(known, frame, -1))
-    after = np.minimum.accumulate(np.where(known, frame, T)[::-1])[::-1]
-    t = np.flatnonzero(~known & (before >= 0) & (after < T))
-    b, a = before[t], after[t]
+    t, b, a = _holes(known)
     use = seen[:, M] & (w > 0)
     whole = seen[b, j] & seen[a, j]                        # a gap the fill left out whole
     two = whole & ((use[b] & use[t]).sum(axis=1) >= 2) & ((use[a] & use[t]).sum(axis=1) >= 2)
@@ -294,43 +354,6 @@ def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
                                 np.ones(src.size, dtype=bool))
             out[sel] = np.interp(np.log(np.maximum(reach[sel], 1)), np.log(lags), errs)
     return out
-
-
-def _carry_few(P, Q, S, x, w) -> np.ndarray:
-    """``x`` (n, 3) carried by the motion of the mates ``S`` (n, k) marks from ``P`` to ``Q``
-    (n, k, 3): the weighted Kabsch fit with three or more, with two the smallest rotation taking
-    the line through them in ``P`` to that in ``Q`` (the turn about that line is not seen) about
-    their midpoint, with one its shift, with none ``x`` as it is."""
-    n = S.sum(axis=1)
-    row = np.arange(n.size)
-    out = x.copy()
-    many = n >= 3
-    if many.any():
-        R, tr = yield _Kabsch((np.nan_to_num(P[many]), np.nan_to_num(Q[many]), w * S[many]))
-        out[many] = np.einsum("nc,ndc->nd", x[many], R) + tr
-    first, second = np.argsort(~S, axis=1, kind="stable")[:, :2].T
-    one = n == 1
-    out[one] = (x + Q[row, first] - P[row, first])[one]
-    two = n == 2
-    if two.any():
-        f, g, r = first[two], second[two], row[two]
-        cp, cq = (P[r, f] + P[r, g]) / 2, (Q[r, f] + Q[r, g]) / 2
-        R = _turn(P[r, g] - P[r, f], Q[r, g] - Q[r, f])
-        out[two] = np.einsum("ncd,nd->nc", R, x[two] - cp) + cq
-    return out
-
-
-def _turn(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The smallest rotations (n, 3, 3) taking the directions ``u`` to ``v`` (n, 3) (Rodrigues);
-    the identity where they are opposite (no smallest one)."""
-    u = u / norm_last(u)[:, None]
-    v = v / norm_last(v)[:, None]
-    k, c = np.cross(u, v), (u * v).sum(axis=1)
-    K = np.zeros((u.shape[0], 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K = K - K.transpose(0, 2, 1)
-    R = np.eye(3) + K + K @ K / np.maximum(1 + c, 1e-12)[:, None, None]
-    return np.where((c > -1 + 1e-9)[:, None, None], R, np.eye(3))
 
 
 def index_segments(segments, labels=None, X=None, observed=None) -> "dict[str, list[int]]":
@@ -440,7 +463,9 @@ def _fingerprint(Xc: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int) -
 
 def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`segment_fill` on positions ``X`` (NaN where not ``seen``) and resolved segments."""
+    """:func:`segment_fill` on positions ``X`` (NaN where not ``seen``) and resolved segments:
+    each segment's frames and errors first, the choice per sample, then each segment's
+    estimates at the samples it was chosen for."""
     T, J = X.shape[:2]
     est = np.full((T, J, 3), np.nan)
     std = np.full((T, J), np.nan)
@@ -453,12 +478,13 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
         first.setdefault((j, M.tobytes()), n)
     runs = sorted(set(first.values()))
     sizes = [2 * (~seen[:, tasks[n][1]]).sum() + HOLDOUT_FRAMES * len(HOLDOUT_LAGS) for n in runs]
-    done = dict(zip(runs, _drive([_estimated_only(_segment_estimate(X, seen, *tasks[n][1:4],
-                                                                    min_mates, tasks[n][4]))
-                                  for n in runs], X, sizes)))
-    estimates = [done[first[(j, M.tobytes())]] for _, j, M, *_ in tasks]
+    done = dict(zip(runs, _drive([_segment_estimate(X, seen, *tasks[n][1:4], min_mates,
+                                                    tasks[n][4]) for n in runs], X, sizes)))
+    run_of = np.full((T, J), -1, dtype=np.int64)
     extra = np.array([s.startswith(_segments.COMPLETION) for s in members] + [False])
-    for (si, j, *_), (at, e, r, b) in zip(tasks, estimates):    # in order: the same choice
+    for si, j, M, *_ in tasks:                              # in order: the same choice
+        n = first[(j, M.tobytes())]
+        at, _, r, b, _ = done[n]
         per_coord = r / np.sqrt(3.0)
         rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
         now = seg_of[at, j]
@@ -467,12 +493,29 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
         better = (now < 0) | ((b == was) & (rank < mine)) | (was & ~b)
         if extra[si]:                    # a completion: where no other segment fills
             better &= (now < 0) | extra[now] | (was & ~b)
-        at, e, per_coord, b = at[better], e[better], per_coord[better], b[better]
-        est[at, j] = e
-        std[at, j] = per_coord
+        at = at[better]
+        std[at, j] = per_coord[better]
         seg_of[at, j] = si
-        bridged[at, j] = b
+        bridged[at, j] = b[better]
+        run_of[at, j] = n
+    _chosen(X, seen, tasks, done, run_of, est)
     return est, std, seg_of, bridged
+
+
+def _chosen(X, seen, tasks: list, done: dict, run_of: np.ndarray, est: np.ndarray) -> None:
+    """Into ``est``, each segment's estimates at the samples it was chosen for (``run_of``):
+    those :func:`_segment_estimate` made, and the rest computed now (:func:`_estimates`)."""
+    later, where = [], []
+    for n, (at, e, _, _, plan) in done.items():
+        j, M = tasks[n][1], tasks[n][2]
+        mine = run_of[at, j] == n
+        est[at[mine], j] = e[mine]
+        rest = at[mine & ~np.isfinite(e).all(axis=1)]
+        if rest.size:
+            later.append(_estimates(seen, j, M, plan, rest))
+            where.append((rest, j))
+    for (rest, j), e in zip(where, _drive(later, X, [2 * r.size for r, _ in where])):
+        est[rest, j] = e
 
 
 def _tasks(X, seen, members: dict, min_mates: int) -> list:
@@ -505,15 +548,6 @@ def _tasks(X, seen, members: dict, min_mates: int) -> list:
             if (w > 0).sum() >= min_mates:
                 tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
     return tasks
-
-
-def _estimated_only(task):
-    """The task :func:`_segment_estimate` returning its estimates at the frames it estimates only:
-    ``(frames, estimate, error, bridged)``, so that the finished tasks of a long recording hold no
-    ``(T, 3)`` array each while the others run."""
-    e, r, b = yield from task
-    at = np.flatnonzero(np.isfinite(e).all(axis=1))
-    return at, e[at], r[at], b[at]
 
 
 def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:

@@ -3,9 +3,10 @@
 :func:`torchfill.solvers.rigid.segment_fill` estimates each marker of each segment in a
 generator that yields its carries (:class:`_Fit`: marker ``j`` carried between frames by its
 mates, each mate weighted by its consistency, then a weighted Kabsch fit) and, across a hole in
-the mates, plain Kabsch fits (:class:`_Kabsch`); :func:`_drive` runs them side by side and answers
-each round's requests in one array computation per mate count, a bounded block of rows at a time.
-Every row's answer depends on that row alone: the same bits however the rows are batched.
+the mates, plain Kabsch fits (:class:`_Kabsch`, from :func:`_carry_few`); :func:`_drive` runs them
+side by side and answers each round's requests in one array computation per mate count, a bounded
+block of rows at a time. Every row's answer depends on that row alone: the same bits however the
+rows are batched, so a segment's estimates are computed only at the samples it is chosen for.
 """
 from __future__ import annotations
 
@@ -185,3 +186,40 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
         z = np.take_along_axis(S, mid[rows].astype(np.int64)[..., None], axis=2)[..., 0]
         C[rows] = np.where(far[rows], (CONSISTENT / np.maximum(z, CONSISTENT)) ** 2, 1.0)
     return C
+
+
+def _carry_few(P, Q, S, x, w) -> np.ndarray:
+    """``x`` (n, 3) carried by the motion of the mates ``S`` (n, k) marks from ``P`` to ``Q``
+    (n, k, 3): the weighted Kabsch fit with three or more, with two the smallest rotation taking
+    the line through them in ``P`` to that in ``Q`` (the turn about that line is not seen) about
+    their midpoint, with one its shift, with none ``x`` as it is."""
+    n = S.sum(axis=1)
+    row = np.arange(n.size)
+    out = x.copy()
+    many = n >= 3
+    if many.any():
+        R, tr = yield _Kabsch((np.nan_to_num(P[many]), np.nan_to_num(Q[many]), w * S[many]))
+        out[many] = np.einsum("nc,ndc->nd", x[many], R) + tr
+    first, second = np.argsort(~S, axis=1, kind="stable")[:, :2].T
+    one = n == 1
+    out[one] = (x + Q[row, first] - P[row, first])[one]
+    two = n == 2
+    if two.any():
+        f, g, r = first[two], second[two], row[two]
+        cp, cq = (P[r, f] + P[r, g]) / 2, (Q[r, f] + Q[r, g]) / 2
+        R = _turn(P[r, g] - P[r, f], Q[r, g] - Q[r, f])
+        out[two] = np.einsum("ncd,nd->nc", R, x[two] - cp) + cq
+    return out
+
+
+def _turn(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotations (n, 3, 3) taking the directions ``u`` to ``v`` (n, 3) (Rodrigues);
+    the identity where they are opposite (no smallest one)."""
+    u = u / norm_last(u)[:, None]
+    v = v / norm_last(v)[:, None]
+    k, c = np.cross(u, v), (u * v).sum(axis=1)
+    K = np.zeros((u.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K = K - K.transpose(0, 2, 1)
+    R = np.eye(3) + K + K @ K / np.maximum(1 + c, 1e-12)[:, None, None]
+    return np.where((c > -1 + 1e-9)[:, None, None], R, np.eye(3))
