@@ -185,10 +185,12 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     known = seen[:, j].copy()
     if todo.size:
         parts, source, good, reach = _three_mates(seen, j, M, w, todo, refs, use, min_mates)
-        plan = (parts, source, todo, min_mates, shape)
         known[todo[good]] = True
-        t, b, a = _holes(known)
-        starts = np.searchsorted(todo, np.setdiff1d(np.r_[b, a], np.flatnonzero(seen[:, j])))
+    holes = _holes(known)
+    if todo.size:
+        plan = (parts, source, todo, min_mates, shape)
+        starts = np.unique(np.r_[holes[1], holes[2]])           # the bridges' estimated ends
+        starts = np.searchsorted(todo, starts[~seen[starts, j]])
         pieces, fits = _part_fits(seen, j, M, plan, starts)
         src, dst, tag = _lag_pairs(refs, float(reach[good].max()) if good.any() else 0.0)
         hold, fit = _carry(seen, j, M, w, src, dst, shape=shape, firm=True)
@@ -203,7 +205,7 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
         r = np.interp(np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size \
             else np.full(todo.size, np.nan)           # too few observed frames to measure
         err[todo[good]] = r[good]
-    bridged = yield from _bridge(X, seen, j, M, w, est, err, known, lambda reach: np.interp(
+    bridged = yield from _bridge(X, seen, j, M, w, est, err, holes, lambda reach: np.interp(
         np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
     at = np.flatnonzero(~seen[:, j] & (known | bridged))
     return at, est[at], err[at], bridged[at], plan
@@ -283,7 +285,7 @@ def _holes(known):
     return t, before[t], after[t]
 
 
-def _bridge(X, seen, j, M, w, est, err, known, curve) -> np.ndarray:
+def _bridge(X, seen, j, M, w, est, err, holes, curve) -> np.ndarray:
     """Fill, in place, the frames of a gap of ``j`` that the rigid fill left out (fewer than three
     mates observed there) between two frames where ``j`` is known (observed or estimated), one of
     them estimated: ``j`` carried from each of the two by the mates observed in both
@@ -294,16 +296,16 @@ def _bridge(X, seen, j, M, w, est, err, known, curve) -> np.ndarray:
     thigh and shank markers jumped 100-330 mm where they met the rest of the fill. The error adds
     in quadrature the anchors' larger estimate, the hold-out ``curve`` at the reach to the nearer
     anchor and the two sides' disagreement times the blend's weight on the farther side (the
-    turn about the mates' line that two mates do not see). ``known``: the frames where ``j`` is
-    observed or estimated (``est`` holds the estimates the bridges start from). Returns the bool
-    (T,) of the frames filled here.
+    turn about the mates' line that two mates do not see). ``holes``: :func:`_holes` of the
+    frames where ``j`` is observed or estimated (``est`` holds the estimates the bridges start
+    from). Returns the bool (T,) of the frames filled here.
 
     A gap that the fill left out whole (both edges observed) is filled where two mates are seen
     in all of its frames, with its own error estimate (:func:`_two_mates`); like a bridge, such
     a fill is the ``rigid`` method's alone: not a donor, not ``auto``'s candidate (the turn about
     the mates' line is unseen; experiments/results/auto.md)."""
     T = est.shape[0]
-    t, b, a = _holes(known)
+    t, b, a = holes
     use = seen[:, M] & (w > 0)
     whole = seen[b, j] & seen[a, j]                        # a gap the fill left out whole
     two = whole & ((use[b] & use[t]).sum(axis=1) >= 2) & ((use[a] & use[t]).sum(axis=1) >= 2)
