@@ -96,7 +96,8 @@ def to_json(rows: list[dict]) -> list[dict]:
                     "filled_frames": r["filled_frames"], "unfilled": r["unfilled"],
                     "support": num(r["support"]),
                     "max_step": num(r["max_step"]), "rigid_ratio": num(r["rigid_ratio"]),
-                    "rigid_partner": r["rigid_partner"] or None, "outside": r["outside"],
+                    "rigid_partner": r["rigid_partner"] or None,
+                    "at_volume_bound": r["at_volume_bound"],
                     "extrapolated": r["extrapolated"], "blackout": r["blackout"]})
     return out
 

@@ -285,8 +285,8 @@ def verdict(row: dict, th: Thresholds) -> tuple[str, list[str]]:
         flag(2 if ratio > th.rigid_reject else 1,
              f"distance to {row['rigid_partner']} off by {row['rigid_dev']:.3g} {u} = "
              f"{ratio:.1f} x its spread (> {th.rigid_reject if ratio > th.rigid_reject else th.rigid_check:g})")
-    if row["outside"]:
-        flag(1, f"{row['outside']} sample(s) at or beyond the observed volume")
+    if row["at_volume_bound"]:
+        flag(1, f"{row['at_volume_bound']} sample(s) at or beyond the observed volume")
     if row["extrapolated"]:
         text = (f"{row['extrapolated']} trial-end frame(s) extrapolated in time "
                 f"({row['extrapolated_s']:.3g} s without spatial support)")
@@ -467,7 +467,7 @@ def _gap_row(X, F, j, a, b, rate, names, partners, support, bounds, black) -> di
            "support": float(support[a:b, j].mean()),
            "max_step": float(np.nanmax(steps)) if np.isfinite(steps).any() else math.nan,
            "rigid_dev": math.nan, "rigid_ratio": math.nan, "rigid_partner": "",
-           "outside": 0, "extrapolated": 0, "extrapolated_s": 0.0,
+           "at_volume_bound": 0, "extrapolated": 0, "extrapolated_s": 0.0,
            "blackout": int(black[a:b].sum()), "segment": None, "disagree": math.nan}
     if row["kind"] == "interior" and rate and (b - a) / rate <= SHORT_SECONDS and fin.all():
         row["disagree"] = _disagreement(X, F, j, a, b)
@@ -484,7 +484,9 @@ def _gap_row(X, F, j, a, b, rate, names, partners, support, bounds, black) -> di
         lo, hi = bounds
         P = F[a:b, j][fin]
         tol = 1e-9 * np.maximum(hi - lo, 1e-12)
-        row["outside"] = int(((P <= lo + tol) | (P >= hi - tol)).any(axis=1).sum())
+        # at or beyond: the constraints clamp a fill onto the bound, so a sample there counts;
+        # metrics.outside_volume counts only those strictly beyond it (none from the default)
+        row["at_volume_bound"] = int(((P <= lo + tol) | (P >= hi - tol)).any(axis=1).sum())
     if row["kind"] in ("start", "end"):
         n = int((fin & ~support[a:b, j]).sum())
         row["extrapolated"] = n
