@@ -175,3 +175,47 @@ def test_the_next_window_runs_only_the_chosen_eps_schedule(walk, monkeypatch):
     torchfill.fill(X, "tucker_tnn", window=300, constraints=False)
     assert len(seen) > 2 and seen[0] == (1e-2, 1e-4)
     assert all(eps in ([1e-2], [1e-4]) for eps in seen[1:]), seen
+
+
+def test_a_warm_start_on_the_same_data_is_already_converged(recording):
+    """A refit from ``warm_start()`` of a fit on the same samples starts at that fit's fixed
+    point: no rank search, a few iterations, the same fill (observed samples untouched)."""
+    P = _load(recording("cmu_02_01.c3d"))
+    T, J, _ = P.shape
+    mask = gaps.multi_gap(T, J, n_markers=10, gap_length=60, max_gaps=2, seed=0)
+    X = torch.as_tensor(np.where(mask[..., None], np.nan, P))
+    first = get_solver("tucker_tnn")
+    F = first.fit_transform(X)
+    params, data = first.warm_start()
+    assert params["rank"] == first.chosen_rank_ and set(data) == {"start"}
+    again = get_solver("tucker_tnn", **params)
+    G = again.fit_transform(X, **data)
+    assert again.n_iter_ <= 3 and not hasattr(again, "chosen_iter_")
+    assert again.rank_ == first.chosen_rank_
+    assert float((G - F).abs().max()) < 2.0            # mm: the last iteration's change
+    assert torch.equal(G[~torch.as_tensor(mask)], X[~torch.as_tensor(mask)])
+
+
+def test_the_defaults_refit_of_tucker_tnn_starts_from_its_hold_out_fit(recording, monkeypatch):
+    """Inside the default, ``tucker_tnn``'s refit on all observed samples continues its hold-out
+    fit at the rank that fit chose (a few iterations instead of a new search), and the default
+    still fills far better than interpolation."""
+    P = _load(recording("cmu_02_01.c3d"))
+    T, J, _ = P.shape
+    mask = gaps.multi_gap(T, J, n_markers=10, gap_length=60, max_gaps=2, seed=0)
+    X = np.where(mask[..., None], np.nan, P)
+    fits = []
+    orig = tk.Tucker._initialize
+
+    def record(self):
+        orig(self)
+        fits.append(self)
+
+    monkeypatch.setattr(tk.Tucker, "_initialize", record)
+    out = torchfill.fill(X, "auto", params={"candidates": ("pchip", "tucker_tnn"), "draws": 1,
+                                            "min_gaps": 0})
+    hold, refit = fits[0], fits[-1]
+    assert refit.start_ is not None and hold.start_ is None and len(fits) == 2
+    assert refit.rank_ == hold.chosen_rank_ and refit.n_iter_ < hold.n_iter_ / 4
+    lin = torchfill.fill(X, method="linear")
+    assert metrics.rmse_missing(out, P, mask) < 0.5 * metrics.rmse_missing(lin, P, mask)

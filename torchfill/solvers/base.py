@@ -597,6 +597,12 @@ class Solver(nn.Module):
         chose on its observed samples and the next window need not search again); none here."""
         return {}
 
+    def warm_start(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Hyperparameters and fit data for a refit of the SAME recording with more samples
+        seen, started from this fit (the default's refits after its hold-out fits); none here:
+        the refit starts afresh."""
+        return {}, {}
+
     def forward(self) -> Tensor:
         """The current full estimate, in the units of the input (a batch: ``(B, T, J, D)``)."""
         if "members_" in self._modules:

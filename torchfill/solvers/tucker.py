@@ -42,7 +42,7 @@ import torch
 from .. import ops
 from .base import Param, Solver, _deprecated, register
 from .factorized import TuckerTensor
-from .holdout import holdout_for, holdout_params, segment_holdout
+from .holdout import HoldOut, holdout_for, holdout_params, segment_holdout
 
 holdout_segments = segment_holdout      # the old name (one release)
 
@@ -227,6 +227,9 @@ class Tucker(Solver):
     """
 
     name = "tucker"
+    #: ``start``: an earlier fit's state on the same recording (:meth:`warm_start`), to start
+    #: from instead of the interpolation; the rank search is then skipped.
+    fit_data = ("start",)
     #: fill() computes in float32: on the Tucker Table 2 layout (HDM1/HDM2 x 9 cells, seed 0)
     #: tucker_tnn's mean RMSE 1.316 (float64) vs 1.203 mm (float32 better in 10 of 18 cells; with
     #: the constraints 0.985 vs 0.957) in half the time (270 vs 140 s); the mask suite's 19 cases
@@ -293,7 +296,9 @@ class Tucker(Solver):
         self.eps_ = self.eps_candidates_[0]
         self.R0_ = R0
         # held-out observed samples: hidden from the fit during the search phase
-        self.holdout_ = holdout_for(self)
+        start = self.fit_data_.get("start")
+        self.start_ = None if start is None else self._units(*start)
+        self.holdout_ = holdout_for(self) if start is None else HoldOut(self.Omega_, None)
         self.searching_ = self.holdout_.active
         self.search_end_iter_ = 0
         self._start(R0)
@@ -307,9 +312,15 @@ class Tucker(Solver):
         return self.holdout_.fit_mask
 
     def _start(self, R: Sequence[int]) -> None:
-        """Centroid-relative linear interpolation of the fitted gaps, then truncated HOSVD."""
-        self.X_ = self.interp_start(self.Omega_fit_, relative=True)
-        self.decomposition_ = TuckerTensor.from_tensor(self.X_, R)
+        """Centroid-relative linear interpolation of the fitted gaps, then truncated HOSVD; or
+        the given ``start`` (an earlier fit's recovered tensor and decomposition)."""
+        if self.start_ is not None:
+            X, G, A = self.start_
+            self.X_ = torch.where(self.Omega_fit_, self.M_, X)
+            self.decomposition_ = TuckerTensor(G.clone(), [a.clone() for a in A])
+        else:
+            self.X_ = self.interp_start(self.Omega_fit_, relative=True)
+            self.decomposition_ = TuckerTensor.from_tensor(self.X_, R)
         self.residual_ = self._observed_residual(self.decomposition_())
 
     def _observed_residual(self, Y: Tensor) -> float:
@@ -430,6 +441,22 @@ class Tucker(Solver):
         one (bench_long 12 000 frames: the same RMSE in fewer iterations, see the README)."""
         eps = getattr(self, "chosen_eps_", None)
         return {"eps": [eps]} if eps is not None and len(_eps_list(self.eps, self.name)) > 1 else {}
+
+    def warm_start(self) -> tuple[dict, dict]:
+        """A refit at the rank this fit's hold-out chose (no search), from this fit's recovered
+        tensor and decomposition (fit data ``start``, in the data's units): a few iterations
+        where a fresh refit searches the ranks again (see docs/speed.md)."""
+        rank = getattr(self, "chosen_rank_", None)
+        if rank is None:
+            return {}, {}
+        d = self.decomposition_
+        return ({"rank": rank, "max_rank": rank},
+                {"start": (self.X_ * self.sigma_ + self.mu_, d.core * self.sigma_, list(d.factors))})
+
+    def _units(self, X: Tensor, G: Tensor, A: list) -> tuple:
+        """An earlier fit's state (data units) in this fit's normalized units."""
+        return (((X.reshape(self.M_.shape) - self.mu_) / self.sigma_).to(self.M_.dtype),
+                (G / self.sigma_).to(self.M_.dtype), [a.to(self.M_.dtype) for a in A])
 
     @property
     def rank_(self) -> tuple[int, ...]:

@@ -101,17 +101,22 @@ class Fits:
         self.M, self.mu, self.sigma, self.fit_data = M, mu, sigma, fit_data
         self.seed, self.params, self.explicit = seed, params or {}, explicit
         self.carried, self.report = carried, report
+        self.warm: dict[str, tuple] = {}        # each candidate's first fit's warm_start()
 
-    def fit_one(self, name: str, fit_missing: Tensor, case: tuple | None = None) -> Tensor:
+    def fit_one(self, name: str, fit_missing: Tensor, case: tuple | None = None,
+                stage: str = "fit") -> Tensor:
         """Candidate ``name`` fitted with ``fit_missing`` (T, J) hidden; its fill (T, J, 3).
         ``case``: another recording to fit instead, ``(M, training)`` in the fit's units (the
-        cross-trial hold-out, see :func:`~.cross.cross_holdout`); nothing is carried from it."""
+        cross-trial hold-out, see :func:`~.cross.cross_holdout`); nothing is carried from it.
+        ``stage`` ``"refit"``: started from this candidate's first fit (its ``warm_start()``)."""
         T, J = fit_missing.shape
         M = self.M if case is None else case[0]
         X = torch.where(fit_missing[..., None], float("nan"), M.reshape(T, J, -1))
         method = name.removesuffix(SESSION)
         params = {"seed": self.seed, **PARTIAL.get(method, {}), **self.params.get(method, {}),
                   **self.carried.get(name, {})}
+        warm = self.warm.get(name, ({}, {})) if stage == "refit" else ({}, {})
+        params.update(warm[0])              # a refit starts from the first fit (warm_start())
         solver = get_solver(method, **params)
         takes = [k for k in solver.fit_data              # a spatial default candidate learns
                  if k != "training" or name.endswith(SESSION)     # from training as +session
@@ -120,11 +125,13 @@ class Fits:
                 for k, v in self.fit_data.items() if k in takes}   # training in the fit's units
         if case is not None and "training" in data:
             data["training"] = case[1]
+        data.update(warm[1])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = solver.fit_transform(X, fit_missing, **data)
         if case is None and name not in self.carried:    # the later fits reuse the first's
             self.carried[name] = solver.carry()
+            self.warm[name] = solver.warm_start()
         if name.endswith(SESSION):
             out = end_shift(out, fit_missing)
         done = torch.isfinite(out).all(dim=-1)
@@ -134,11 +141,11 @@ class Fits:
             raise ValueError("non-finite fill")
         return out.to(self.M.dtype)
 
-    def attempt(self, name: str, fit_missing: Tensor, case: tuple | None = None
-                ) -> Tensor | Exception:
+    def attempt(self, name: str, fit_missing: Tensor, case: tuple | None = None,
+                stage: str = "fit") -> Tensor | Exception:
         """:meth:`fit_one`, or the error that drops the candidate."""
         try:
-            return self.fit_one(name, fit_missing, case)
+            return self.fit_one(name, fit_missing, case, stage)
         except FAILURES as err:
             return err
         finally:                        # the fit's solver is gone: its freed memory goes back
@@ -154,7 +161,7 @@ class Fits:
         lock, done = threading.Lock(), [0]
 
         def attempt(name: str):
-            out = self.attempt(name, fit_missing, case)
+            out = self.attempt(name, fit_missing, case, stage)
             with lock:
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
