@@ -132,8 +132,10 @@ def saits(seq: torchfill.MarkerSequence, steps: int = 48, stride: int = 8,
           epochs: int = 100) -> np.ndarray:
     """PyPOTS SAITS trained on the recording itself (windows of ``steps`` frames every
     ``stride``, coordinates standardised, its observed samples only), then imputing the same
-    windows, averaged where they overlap; a small model on the CPU (docs/benchmark.md#peers)."""
+    windows, averaged where they overlap; a small model on the CPU, seeded
+    (docs/benchmark.md#peers)."""
     from pypots.imputation import SAITS
+    from pypots.utils.random import set_random_seed
 
     T, J, D = seq.points.shape
     M = seq.points.reshape(T, J * D)
@@ -142,6 +144,7 @@ def saits(seq: torchfill.MarkerSequence, steps: int = 48, stride: int = 8,
     steps = min(steps, T)
     starts = sorted(set(range(0, T - steps + 1, stride)) | {T - steps})
     W = np.stack([Z[a:a + steps] for a in starts])
+    set_random_seed(0)              # its weights, masks and batch order are drawn: one seed
     model = SAITS(n_steps=steps, n_features=J * D, n_layers=2, d_model=64, n_heads=4, d_k=16,
                   d_v=16, d_ffn=128, epochs=epochs, device="cpu", verbose=False)
     with warnings.catch_warnings():
@@ -188,8 +191,8 @@ PEERS = {
     "pose2sim": ("Pose2Sim interpolate_zeros_nans (cubic, gaps <= 10 frames)", "Pose2Sim.common",
                  pose2sim),
     "mogapfill": ("Burke & Lasenby Kalman smoother (MoGapFill)", "$MOGAPFILL_SMOOTH", mogapfill),
-    "saits": ("PyPOTS SAITS trained on the recording (CPU, 100 epochs)", "pypots.imputation",
-              saits),
+    "saits": ("PyPOTS SAITS trained on the recording (CPU, 100 epochs, seed 0)",
+              "pypots.imputation", saits),
 }
 
 
