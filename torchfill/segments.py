@@ -422,11 +422,12 @@ class PairStats:
 
 def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = None, *,
                neighbours: int = NEIGHBOURS, min_frames: int = 20,
-               orientation: bool = True) -> PairStats:
+               orientation=True) -> PairStats:
     """:class:`PairStats` of ``pairs`` (default: :func:`neighbour_pairs`) over at most
     ``PAIR_FRAMES`` evenly spaced frames, a block of pairs at a time. Pairs seen together in fewer
     than ``min_frames`` frames get NaN statistics. ``orientation=False``: no ``direction`` and
-    ``cone`` (None; half of the time: what the segments and the rigid fill's weights need)."""
+    ``cone`` (None; half of the time: what the segments and the rigid fill's weights need); a
+    bool per pair: those of these pairs only (NaN for the others; each pair's own bits)."""
     X = np.asarray(X, dtype=np.float64)
     if observed is None:
         observed = np.isfinite(X).all(axis=2)
@@ -442,8 +443,9 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     T = obs.shape[1]
     n = j.size
     med, mad, wide = (np.full(n, np.nan) for _ in range(3))
-    cone = np.full(n, np.nan) if orientation else None
-    direction = np.full((n, X.shape[2]), np.nan) if orientation else None
+    turn = np.broadcast_to(np.asarray(orientation, dtype=bool), (n,))[order]
+    cone = np.full(n, np.nan) if orientation is not False else None
+    direction = np.full((n, X.shape[2]), np.nan) if orientation is not False else None
     count = np.zeros(n, np.int64)
     block = max(1, PAIR_BLOCK // max(T, 1))
     for a in range(0, n, block):
@@ -462,8 +464,12 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
         wide[a:a + block] = np.where(keep, w, np.nan)
-        if orientation:
+        at = turn[a:a + block]
+        if at.all():
             direction[a:a + block], cone[a:a + block] = _orientation(V, D, c, keep)
+        elif at.any():
+            direction[a:a + block][at], cone[a:a + block][at] = _orientation(
+                V[..., at], D[:, at], c[at], keep[at])
         count[a:a + block] = c
     return PairStats(j, k, med, mad, wide, count, X.shape[1], direction, cone)
 

@@ -81,8 +81,12 @@ def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
     J = X.shape[1]
     st = every = None
     if pairs is None and J * (J - 1) // 2 <= SCALE_PAIRS:    # the scale measures every pair:
-        every = _segments.pair_stats(X, observed, np.triu_indices(J, 1), min_frames=min_frames)
-        st = _subset(every, _segments.neighbour_pairs(X, observed))   # each pair on its own
+        near = _segments.neighbour_pairs(X, observed)     # the orientation of these only
+        a, b = np.triu_indices(J, 1)
+        turn = np.isin(a * J + b, near[0] * J + near[1])
+        every = _segments.pair_stats(X, observed, (a, b), min_frames=min_frames,
+                                     orientation=turn)
+        st = _subset(every, near)                       # each pair on its own
     if st is None:
         st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
         every = st
