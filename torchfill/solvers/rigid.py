@@ -164,8 +164,8 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     each; the estimates themselves at the frames a bridge starts from (:func:`_bridge`) and at
     the bridged ones only: the rest waits for :func:`_estimates` at the frames this segment is
     chosen for (a marker in several segments keeps one segment's fill a sample). Returns
-    ``(frames, estimates (NaN: not yet), error, bridged, plan)``, the plan for
-    :func:`_estimates`.
+    ``(frames, (frames estimated so far, their estimates), error, bridged, plan)``, the plan
+    for :func:`_estimates`.
 
     References are the frames with ``j`` and ``min_mates`` mates observed; a frame whose nearest
     references share fewer than ``min_mates`` observed mates with it is carried instead from the
@@ -179,7 +179,8 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     use = use[todo]                 # while the tasks wait on each other: no (T, ...) arrays held
     del enough
     if refs.size == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool), None
+        none = np.zeros(0, np.int64)
+        return none, (none, np.zeros((0, 3))), np.zeros(0), np.zeros(0, bool), None
     lags = errs = np.zeros(0)
     plan = None
     known = seen[:, j].copy()
@@ -208,7 +209,8 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
     bridged = yield from _bridge(X, seen, j, M, w, est, err, holes, lambda reach: np.interp(
         np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
     at = np.flatnonzero(~seen[:, j] & (known | bridged))
-    return at, est[at], err[at], bridged[at], plan
+    made = np.flatnonzero(np.isfinite(est).all(axis=1))
+    return at, (made, est[made]), err[at], bridged[at], plan
 
 
 def _three_mates(seen, j, M, w, todo, refs, use, min_mates):
@@ -508,11 +510,12 @@ def _chosen(X, seen, tasks: list, done: dict, run_of: np.ndarray, est: np.ndarra
     """Into ``est``, each segment's estimates at the samples it was chosen for (``run_of``):
     those :func:`_segment_estimate` made, and the rest computed now (:func:`_estimates`)."""
     later, where = [], []
-    for n, (at, e, _, _, plan) in done.items():
+    for n, (at, (made, e), _, _, plan) in done.items():
         j, M = tasks[n][1], tasks[n][2]
-        mine = run_of[at, j] == n
-        est[at[mine], j] = e[mine]
-        rest = at[mine & ~np.isfinite(e).all(axis=1)]
+        mine = at[run_of[at, j] == n]
+        have = np.isin(mine, made)
+        est[mine[have], j] = e[np.searchsorted(made, mine[have])]
+        rest = mine[~have]
         if rest.size:
             later.append(_estimates(seen, j, M, plan, rest))
             where.append((rest, j))
@@ -523,7 +526,8 @@ def _chosen(X, seen, tasks: list, done: dict, run_of: np.ndarray, est: np.ndarra
 def _tasks(X, seen, members: dict, min_mates: int) -> list:
     """``(segment index, marker, mates, weights, shape)`` of each marker with missing samples in
     each segment of more than ``min_mates`` members: the mates weighted by how rigid their
-    distance to the marker was, ``1 / (spread^2 + floor^2)``; ``shape``: :func:`_shape`."""
+    distance to the marker was, ``1 / (spread^2 + floor^2)``; ``shape``: the mates' median
+    distances and bands (:func:`_shape`)."""
     need = (~seen).any(axis=0) & seen.any(axis=0)
     pairs = [np.stack([m[a], m[b]], 1) for m in members.values() if m.size > min_mates
              for a, b in [np.triu_indices(m.size, 1)]]
@@ -542,27 +546,28 @@ def _tasks(X, seen, members: dict, min_mates: int) -> list:
             floor = 0.01 * np.nanmedian(stats.distance[stats.lookup(m[a], m[b])])
         if not np.isfinite(floor) or floor <= 0:
             floor = 1e-9
-        for j in m[need[m]]:
-            M = m[m != j]
-            idx = stats.lookup(np.full(M.size, j), M)
-            spread = np.where(idx >= 0, stats.spread[np.maximum(idx, 0)], np.nan)
-            w = np.where(np.isfinite(spread), 1.0 / (spread ** 2 + floor ** 2), 0.0)
+        D0, spread = _shape(stats, m)
+        for i in np.flatnonzero(need[m]):
+            others = np.arange(m.size) != i
+            w = np.where(np.isfinite(spread[i, others]),
+                         1.0 / (spread[i, others] ** 2 + floor ** 2), 0.0)
             if (w > 0).sum() >= min_mates:
-                tasks.append((si, int(j), M, w, _shape(stats, M, floor)))
+                inner = np.ix_(others, others)
+                tasks.append((si, int(m[i]), m[others], w,
+                              (D0[inner], 2.0 * spread[inner] + floor)))
     return tasks
 
 
-def _shape(stats, M: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Median distances (k, k) among the mates ``M`` and their bands (twice the robust spread,
-    about the 95th percentile of a normal deviation, plus ``floor``; robust, so a ghost present in
-    a fifth of the frames does not widen it), NaN where a pair was not measured: what
-    :func:`.rigid_batch._consistency` checks."""
-    a, b = np.meshgrid(M, M, indexing="ij")
+def _shape(stats, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median distances (k, k) among the members ``m`` of a segment and their robust spreads, NaN
+    where a pair was not measured. A marker's mates' bands (twice the spread, about the 95th
+    percentile of a normal deviation, plus the floor; robust, so a ghost present in a fifth of
+    the frames does not widen it) are what :func:`.rigid_batch._consistency` checks."""
+    a, b = np.meshgrid(m, m, indexing="ij")
     idx = stats.lookup(a.ravel(), b.ravel()).reshape(a.shape)
     hit = (idx >= 0) & (a != b)
-    D0 = np.where(hit, stats.distance[np.maximum(idx, 0)], np.nan)
-    band = 2.0 * np.where(hit, stats.spread[np.maximum(idx, 0)], np.nan) + floor
-    return D0, band
+    return (np.where(hit, stats.distance[np.maximum(idx, 0)], np.nan),
+            np.where(hit, stats.spread[np.maximum(idx, 0)], np.nan))
 
 
 def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None, labels=None,
