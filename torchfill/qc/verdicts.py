@@ -128,8 +128,8 @@ class Thresholds:
                f"{self.end_step_cap:.4g} {u}): check; above the step cap: reject",
                f"interior gaps up to {SHORT_SECONDS:g} s: fill departs from the interpolation "
                f"across the gap by > {self.disagree:.4g} {u} RMS: check; within "
-               f"{self.agree:.4g} {u} (and not on it, beyond {self.same:.4g} {u}): not flagged on "
-               "the estimated error"]
+               f"{self.agree:.4g} {u} of it but not on it (> {self.same:.4g} {u}): not flagged "
+               "on the estimated error alone"]
         if self.dims == 3:
             out.append(f"rigid-partner distance off by > {self.rigid_check:g} x the pair's "
                        f"observed spread: check; > {self.rigid_reject:g} x: reject")
