@@ -208,8 +208,9 @@ def _segment_estimate(X, seen, j, M, w, min_mates=3, shape=None):
         err[todo[good]] = r[good]
     bridged = yield from _bridge(X, seen, j, M, w, est, err, holes, lambda reach: np.interp(
         np.log(np.maximum(reach, 1)), np.log(lags), errs) if lags.size else np.nan)
-    at = np.flatnonzero(~seen[:, j] & (known | bridged))
-    made = np.flatnonzero(np.isfinite(est).all(axis=1))
+    made = np.isfinite(est).all(axis=1)
+    at = np.flatnonzero(~seen[:, j] & (known | bridged) & (made | ~bridged))   # two coincident
+    made = np.flatnonzero(made)                         # mates carry nothing: not estimated
     return at, (made, est[made]), err[at], bridged[at], plan
 
 
