@@ -485,7 +485,7 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
     sizes = [2 * (~seen[:, tasks[n][1]]).sum() + HOLDOUT_FRAMES * len(HOLDOUT_LAGS) for n in runs]
     done = dict(zip(runs, _drive([_segment_estimate(X, seen, *tasks[n][1:4], min_mates,
                                                     tasks[n][4]) for n in runs], X, sizes)))
-    run_of = np.full((T, J), -1, dtype=np.int64)
+    run_of = np.full((T, J), -1, dtype=np.int32)              # each sample's chosen run
     extra = np.array([s.startswith(_segments.COMPLETION) for s in members] + [False])
     for si, j, M, *_ in tasks:                              # in order: the same choice
         n = first[(j, M.tobytes())]
