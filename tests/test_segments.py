@@ -250,3 +250,6 @@ def test_column_quantiles_are_numpys_nanquantile(T):
         for q in (0.5, 0.95):
             np.testing.assert_allclose(_col_quantile(np.sort(D, axis=0), n, q),
                                        np.nanquantile(D, q, axis=0), rtol=0, atol=1e-15)
+            np.testing.assert_allclose(                  # a map's quantile from two values a column
+                _col_quantile(np.sort(-D, axis=0), n, q, lambda x: np.arccos(-x)),
+                np.nanquantile(np.arccos(D), q, axis=0), rtol=0, atol=1e-15)

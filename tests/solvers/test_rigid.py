@@ -22,6 +22,26 @@ def _rotation(rng) -> np.ndarray:
     return Q if np.linalg.det(Q) > 0 else -Q
 
 
+def test_each_sample_is_its_chosen_segments_carry_to_that_frame():
+    """A truly rigid body turning fast (a random rotation a frame) in two overlapping segments:
+    every sample estimated from three mates or more is exact, whichever segment is chosen (the
+    chosen segment's carries are made after the choice, at its chosen samples only)."""
+    rng = np.random.default_rng(3)
+    T, J = 300, 8
+    body = rng.normal(0, 100, (J, 3))
+    turn = np.stack([_rotation(rng) for _ in range(T)])
+    truth = np.einsum("tij,kj->tki", turn, body) + rng.normal(0, 500, (T, 1, 3))
+    X = truth.copy()
+    for _ in range(25):
+        a = rng.integers(T - 30)
+        X[a:a + rng.integers(3, 30), rng.integers(J)] = np.nan
+    est, _, seg_of = segment_fill(X, None, {"a": list(range(6)), "b": list(range(2, 8))})
+    done = np.isfinite(est).all(axis=2)
+    assert done.sum() > 0.9 * np.isnan(X).any(axis=2).sum()
+    assert set(np.unique(seg_of[done]).tolist()) == {0, 1}
+    np.testing.assert_allclose(est[done], truth[done], rtol=0, atol=1e-6)
+
+
 def test_kabsch_recovers_a_known_rotation_and_translation():
     rng = np.random.default_rng(0)
     P = rng.normal(size=(5, 4, 3))
