@@ -254,8 +254,8 @@ def add_arguments(p) -> None:
                    help="own: tennis + the transplants (the thresholds were chosen on these); "
                         "suite: the real-gap benchmark (held out)")
     p.add_argument("--csv", default=str(GAPS), help="per-gap rows ('' : none)")
-    p.add_argument("--doc", type=Path, help="also write the tables into this docs page, "
-                                            "between <!-- qc:start/end --> markers")
+    p.add_argument("--doc", help="also write the tables into this docs page, between "
+                                 "<!-- qc:start/end --> markers ('' : none)")
     p.add_argument("--plausibility", action="store_true",
                    help="instead: plausibility of fills on the real gaps (no truth)")
     p.add_argument("--methods", default=",".join(PLAUSIBLE_METHODS),
