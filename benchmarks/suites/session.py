@@ -10,7 +10,7 @@ own gaps included). Prints per case the RMSE over the hidden samples (mm) and th
 the mean ratio on the trial-end-dominated cases and the worst ratio over all cases.
 ``--timing`` instead times a batch (``torchfill fill DIR/*.c3d``) with and without ``--session``::
 
-    OMP_NUM_THREADS=1 python -m benchmarks session --csv session_rows.csv
+    OMP_NUM_THREADS=1 python -m benchmarks session            (rows: experiments/results/session/rows.csv)
     OMP_NUM_THREADS=1 python -m benchmarks session --timing --trials 10 --frames 400
 """
 from __future__ import annotations
@@ -34,6 +34,7 @@ from ..timing import measure
 from . import case_arguments
 
 RESULTS = data.RESULTS / "session"
+ROWS = RESULTS / "rows.csv"
 HELP = "a subject's other trials as training: RMSE alone vs with the session, and its time"
 #: Sessions: the trial the gaps are laid onto first, then the subject's other trial(s).
 SESSIONS = {
@@ -119,12 +120,12 @@ def stats(rows: list[dict], end_share: float = 0.0) -> dict:
 
 
 def stored() -> list[dict]:
-    """The rows kept in experiments/results/session/ (one CSV a session)."""
-    return [r for path in sorted(RESULTS.glob("*.csv")) for r in read_csv(path)]
+    """The rows kept in experiments/results/session/rows.csv (``python -m benchmarks session``)."""
+    return read_csv(ROWS)
 
 
 def add_arguments(p) -> None:
-    case_arguments(p, "")
+    case_arguments(p, str(ROWS))
     p.add_argument("--both-ways", action="store_true",
                    help="lay the gaps onto every trial of a session, not only the first")
     p.add_argument("--timing", action="store_true",
