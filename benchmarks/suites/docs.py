@@ -55,7 +55,8 @@ API = [
 MEMBERS = {"MarkerSequence": ["mask", "short_labels", "with_points", "select", "duplicates",
                               "merge_duplicates", "to_pandas", "from_pandas", "to_xarray",
                               "from_xarray", "to_ktk", "from_ktk"],
-           "Solver": ["fit", "fit_transform", "step", "forward", "transform", "carry", "report"]}
+           "Solver": ["fit", "fit_transform", "step", "forward", "transform", "carry", "warm_start",
+                      "report"]}
 
 
 def _resolve(path: str):

@@ -454,7 +454,9 @@ class Tucker(Solver):
                 {"start": (self.X_ * self.sigma_ + self.mu_, d.core * self.sigma_, list(d.factors))})
 
     def _units(self, X: Tensor, G: Tensor, A: list) -> tuple:
-        """An earlier fit's state (data units) in this fit's normalized units."""
+        """An earlier fit's state (data units) in this fit's normalized units. The core is
+        rescaled to this fit's ``sigma_``; the shift of ``mu_`` between the two fits (the samples
+        seen differ) is left to the first iterations."""
         return (((X.reshape(self.M_.shape) - self.mu_) / self.sigma_).to(self.M_.dtype),
                 (G / self.sigma_).to(self.M_.dtype), [a.to(self.M_.dtype) for a in A])
 
