@@ -16,7 +16,6 @@ the mean ratio on the trial-end-dominated cases and the worst ratio over all cas
 from __future__ import annotations
 
 import tempfile
-import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
