@@ -77,7 +77,8 @@ def _carry(seen, j, M, w, src, dst, min_mates=3, shape=None, firm=False, valid=T
     with ``firm``, a frame pair needs three mates above ``FIRM`` there: see
     :mod:`.rigid_batch`). Returns the bool (n,) of the pairs with ``min_mates`` mates (and
     ``valid``) and the :class:`.rigid_batch._Fit` carry of those, for :func:`_carried`."""
-    W = w[None] * (seen[src[:, None], M] & seen[dst[:, None], M])
+    flat, J = seen.reshape(-1), seen.shape[1]          # a 1-D take: a fast gather
+    W = w[None] * (flat.take(src[:, None] * J + M) & flat.take(dst[:, None] * J + M))
     ok = ((W > 0).sum(axis=1) >= min_mates) & valid
     return ok, (j, M, W[ok], src[ok], dst[ok], shape, firm)
 
@@ -472,6 +473,7 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
     each segment's frames and errors first, the choice per sample, then each segment's
     estimates at the samples it was chosen for."""
     T, J = X.shape[:2]
+    seen = np.ascontiguousarray(seen)                   # its rows taken flat (:func:`_carry`)
     est = np.full((T, J, 3), np.nan)
     std = np.full((T, J), np.nan)
     seg_of = np.full((T, J), -1, dtype=np.int64)
@@ -491,9 +493,9 @@ def _segment_fill(X: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int
         n = first[(j, M.tobytes())]
         at, _, r, b, _ = done[n]
         per_coord = r / np.sqrt(3.0)
-        rank = np.nan_to_num(per_coord, nan=np.finfo(float).max)    # unmeasured: last
+        rank = np.fmin(per_coord, np.finfo(float).max)      # unmeasured (NaN): last
         now = seg_of[at, j]
-        mine = np.where(now >= 0, np.nan_to_num(std[at, j], nan=np.finfo(float).max), np.inf)
+        mine = np.where(now >= 0, np.fmin(std[at, j], np.finfo(float).max), np.inf)
         was = bridged[at, j]             # a segment's fit from three mates before any bridge
         better = (now < 0) | ((b == was) & (rank < mine)) | (was & ~b)
         if extra[si]:                    # a completion: where no other segment fills
@@ -544,7 +546,8 @@ def _tasks(X, seen, members: dict, min_mates: int) -> list:
         a, b = np.triu_indices(m.size, 1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            floor = 0.01 * np.nanmedian(stats.distance[stats.lookup(m[a], m[b])])
+            d = stats.distance[stats.lookup(m[a], m[b])]
+            floor = 0.01 * np.median(d[~np.isnan(d)])              # nanmedian's value
         if not np.isfinite(floor) or floor <= 0:
             floor = 1e-9
         D0, spread = _shape(stats, m)
