@@ -12,7 +12,8 @@ import torchfill
 from torchfill import metrics
 from torchfill.segments import Segments
 from torchfill.solvers import rigid
-from torchfill.solvers.rigid import _carry_few, kabsch, rigid_fill, rigid_pairs, segment_fill
+from torchfill.ops.rotation import kabsch
+from torchfill.solvers.rigid import _carry_few, rigid_fill, rigid_pairs, segment_fill
 from torchfill.solvers.rigid_pairs import _upper_nanquantile
 
 

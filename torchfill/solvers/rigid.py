@@ -54,7 +54,6 @@ import torch
 
 from .. import segments as _segments
 from ..metrics import norm_last
-from ..ops.rotation import kabsch
 from ..runtime.cache import Memo
 from .base import OneShotSolver, Param, register
 from .interp import Pchip
@@ -310,6 +309,9 @@ def _bridge(X, seen, j, M, w, est, err, holes, curve) -> np.ndarray:
     the mates' line is unseen; experiments/results/auto.md)."""
     T = est.shape[0]
     t, b, a = holes
+    bridged = np.zeros(T, dtype=bool)
+    if t.size == 0:
+        return bridged
     use = seen[:, M] & (w > 0)
     whole = seen[b, j] & seen[a, j]                        # a gap the fill left out whole
     two = whole & ((use[b] & use[t]).sum(axis=1) >= 2) & ((use[a] & use[t]).sum(axis=1) >= 2)
@@ -318,7 +320,6 @@ def _bridge(X, seen, j, M, w, est, err, holes, curve) -> np.ndarray:
     two[whole] &= ~lacks[gap.reshape(-1)]                  # all of a whole gap's frames or none
     keep = ~whole | two
     t, b, a, two = t[keep], b[keep], a[keep], two[keep]
-    bridged = np.zeros(T, dtype=bool)
     if t.size == 0:
         return bridged
     sides = []
@@ -596,15 +597,22 @@ def rigid_fill(X, observed=None, pairs: RigidPairs | None = None, segments=None,
                                min_mates=min_partners)
     done = np.isfinite(est).all(axis=2)
     good = done & (np.sqrt(3.0) * std <= pairs.tol * pairs.scale)
-    for j in np.flatnonzero(done.any(axis=0)):          # a gap's donors all or none: a fill
-        run = np.cumsum(np.diff(np.r_[0, ~seen[:, j]].astype(int)) == 1) * ~seen[:, j]
-        bad = np.unique(run[done[:, j] & ~good[:, j]])  # edge inside a gap is worse than none
-        done[np.isin(run, bad[bad > 0]), j] = False
+    gap = _gap_ids(~seen)                               # a gap's donors all or none: a fill
+    bad = np.unique(gap[done & ~good])                  # edge inside a gap is worse than none
+    done[np.isin(gap, bad[bad > 0])] = False
     out = est                       # segment_fill's own array: NaN at observed samples
     out[~done] = np.nan
     np.copyto(out, Xn, where=seen[..., None])
     _fill_duplicates(out, done, Xn, seen, pairs)
     return torch.from_numpy(out), torch.from_numpy(done)
+
+
+def _gap_ids(missing: np.ndarray) -> np.ndarray:
+    """Each missing sample's gap (T, J): a number of its own per run of missing frames of a
+    marker (1, 2, ... column after column), 0 where observed."""
+    m = missing.T
+    start = m & ~np.c_[np.zeros((m.shape[0], 1), bool), m[:, :-1]]
+    return (np.cumsum(start.reshape(-1)).reshape(m.shape) * m).T
 
 
 def _fill_duplicates(out, done, X, seen, pairs: RigidPairs) -> None:
