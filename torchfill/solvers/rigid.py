@@ -57,16 +57,11 @@ from ..metrics import norm_last
 from ..runtime.cache import Memo
 from .base import OneShotSolver, Param, register
 from .interp import Pchip
-from .rigid_batch import _carry_few, _drive, _Fit, _turn
+from .rigid_batch import _carry_few, _drive, _Fit
+from .rigid_holdout import HOLDOUT_FRAMES, HOLDOUT_LAGS, _curve, _lag_pairs, _two_mates
 from .rigid_pairs import RigidPairs, _numpy, body_size, rigid_pairs
 
 Tensor = torch.Tensor
-
-
-#: The hold-out error of a rigid fill is measured on at most this many reference frames per lag.
-HOLDOUT_FRAMES = 64
-#: Reaches (frames) at which the hold-out error is measured; interpolated in log reach between.
-HOLDOUT_LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
 
 
 def _carry(seen, j, M, w, src, dst, min_mates=3, shape=None, firm=False, valid=True):
@@ -76,10 +71,15 @@ def _carry(seen, j, M, w, src, dst, min_mates=3, shape=None, firm=False, valid=T
     with ``firm``, a frame pair needs three mates above ``FIRM`` there: see
     :mod:`.rigid_batch`). Returns the bool (n,) of the pairs with ``min_mates`` mates (and
     ``valid``) and the :class:`.rigid_batch._Fit` carry of those, for :func:`_carried`."""
-    flat, J = seen.reshape(-1), seen.shape[1]          # a 1-D take: a fast gather
-    W = w[None] * (flat.take(src[:, None] * J + M) & flat.take(dst[:, None] * J + M))
+    W = w[None] * _both(seen, M, src, dst)
     ok = ((W > 0).sum(axis=1) >= min_mates) & valid
     return ok, (j, M, W[ok], src[ok], dst[ok], shape, firm)
+
+
+def _both(seen, M, src, dst) -> np.ndarray:
+    """The bool (n, k): each mate of ``M`` observed in both frames ``src`` and ``dst``."""
+    flat, J = seen.reshape(-1), seen.shape[1]          # a 1-D take: a fast gather
+    return flat.take(src[:, None] * J + M) & flat.take(dst[:, None] * J + M)
 
 
 def _carried(ok: np.ndarray, answer) -> tuple[np.ndarray, np.ndarray]:
@@ -94,60 +94,29 @@ def _carried(ok: np.ndarray, answer) -> tuple[np.ndarray, np.ndarray]:
     return out, good
 
 
-def _lag_pairs(refs: np.ndarray, reach: float = np.inf):
-    """Reference frames ``src`` and the first ``dst`` at least each of ``HOLDOUT_LAGS`` frames
-    later, up to the first lag that covers ``reach`` (longer lags change no estimate) and before
-    the first with fewer than three pairs; at most ``HOLDOUT_FRAMES`` pairs per lag spread evenly
-    (``numpy.linspace``'s picks); ``tag``: each pair's lag (index)."""
-    lags = np.asarray(HOLDOUT_LAGS[:int(np.searchsorted(HOLDOUT_LAGS, reach)) + 1])
-    c = np.searchsorted(refs, refs[-1] - lags, side="right") if refs.size else 0 * lags
-    c = c[:int(np.argmax(c < 3)) if (c < 3).any() else c.size]    # the sources with a later ref
-    m = np.minimum(c, HOLDOUT_FRAMES)
-    tag = np.repeat(np.arange(c.size), m)
-    ends = np.cumsum(m)
-    y = (np.arange(tag.size) - np.repeat(ends - m, m)) * np.repeat((c - 1) / (m - 1), m)
-    y[ends - 1] = c - 1
-    pick = np.round(y).astype(np.int64)
-    keep = np.r_[True, (pick[1:] != pick[:-1]) | (tag[1:] != tag[:-1])]
-    src, tag = refs[pick[keep]], tag[keep]
-    return src, refs[np.searchsorted(refs, src + lags[tag])], tag
-
-
-def _curve(src, dst, tag, sq, good) -> tuple[np.ndarray, np.ndarray]:
-    """The hold-out error curve: per lag (``tag``) with three or more ``good`` pairs, the median
-    reach ``dst - src`` and the RMS of the squared errors ``sq``; the errors made non-decreasing
-    in reach."""
-    d, tag, sq = (dst - src)[good], tag[good], sq[good]
-    n = np.bincount(tag, minlength=1)
-    order = np.lexsort((d, tag))
-    first = np.cumsum(n) - n
-    mid = (d[order][first + np.maximum(n - 1, 0) // 2] + d[order][first + n // 2]) / 2
-    rms = np.sqrt(np.bincount(tag, weights=sq, minlength=1) / np.maximum(n, 1))
-    three = n >= 3
-    return mid[three].astype(float), np.maximum.accumulate(rms[three])
-
-
 def _edges(seen, j, M, w, todo, refs, min_mates):
     """The nearest reference before and after each ``todo`` frame and whether ``j`` can be
-    carried from it: the plan ``(todo, b, a, okb, oka, w)`` of :func:`_edge_fits` and
-    :func:`_blend`, and the reach of each frame (to the nearer used edge)."""
+    carried from it: the plan ``(todo, b, a, okb, oka, w, Sb, Sa)`` of :func:`_edge_fits` and
+    :func:`_blend` (``Sb``, ``Sa``: :func:`_both` of each edge), and the reach of each frame (to
+    the nearer used edge)."""
     pos = np.searchsorted(refs, todo)
     b = refs[np.clip(pos - 1, 0, refs.size - 1)]
     a = refs[np.clip(pos, 0, refs.size - 1)]
-    okb = _carry(seen, j, M, w, b, todo, min_mates, valid=pos > 0)[0]
-    oka = _carry(seen, j, M, w, a, todo, min_mates, valid=pos < refs.size)[0]
+    Sb, Sa = _both(seen, M, b, todo), _both(seen, M, a, todo)
+    okb, oka = (((w[None] * S > 0).sum(axis=1) >= min_mates) & v     # :func:`_carry`'s ok
+                for S, v in ((Sb, pos > 0), (Sa, pos < refs.size)))
     reach = np.where(okb & oka, np.minimum(todo - b, a - todo), np.where(oka, a - todo, todo - b))
-    return (todo, b, a, okb, oka, w), reach
+    return (todo, b, a, okb, oka, w, Sb, Sa), reach
 
 
 def _edge_fits(seen, j, M, plan, rows, min_mates, shape):
     """The plan of an :func:`_edges` plan's frames ``rows`` and their two carries (from the
     reference before, from the one after): each row is its own fit, the same bits whatever
     the other rows."""
-    todo, b, a, okb, oka = (p[rows] for p in plan[:5])
-    w = plan[5]
-    return (todo, b, a, okb, oka, w), [_carry(seen, j, M, w, e, todo, min_mates, shape, valid=ok)[1]
-                                       for e, ok in ((b, okb), (a, oka))]
+    todo, b, a, okb, oka, Sb, Sa = (p[rows] for p in plan[:5] + plan[6:])
+    w = plan[5]                                         # :func:`_carry`'s carries of the edges
+    return (todo, b, a, okb, oka, w), [(j, M, (w[None] * S)[ok], e[ok], todo[ok], shape, False)
+                                       for e, ok, S in ((b, okb, Sb), (a, oka, Sa))]
 
 
 def _blend(plan, answers) -> np.ndarray:
@@ -337,30 +306,6 @@ def _bridge(X, seen, j, M, w, est, err, holes, curve) -> np.ndarray:
         err[t[two]] = np.where(np.isfinite(e2), e2, err[t[two]])
     bridged[t] = True
     return bridged
-
-
-def _two_mates(X, seen, j, M, use, reach) -> np.ndarray:
-    """Error (3-D RMS) of carrying ``j`` by two mates over ``reach`` frames, per frame whose
-    mates seen are ``use`` (n, k), measured as the three-mate hold-out curve (:func:`_curve`)
-    on the frames where ``j`` and those two are observed, carried by the smallest rotation of
-    their line (the turn about it unseen); NaN where too few frames show the three together."""
-    out = np.full(reach.size, np.nan)
-    codes = use @ (1 << np.arange(M.size, dtype=np.int64))
-    for code in np.unique(codes):
-        pair = M[[i for i in range(M.size) if code >> i & 1][:2]]
-        if pair.size < 2:
-            continue
-        refs = np.flatnonzero(seen[:, j] & seen[:, pair].all(axis=1))
-        sel = codes == code
-        src, dst, tag = _lag_pairs(refs, reach[sel].max())
-        if src.size:
-            P, Q = X[src][:, pair], X[dst][:, pair]
-            R = _turn(P[:, 1] - P[:, 0], Q[:, 1] - Q[:, 0])
-            x = np.einsum("ncd,nd->nc", R, X[src, j] - P.mean(axis=1)) + Q.mean(axis=1)
-            lags, errs = _curve(src, dst, tag, np.sum((x - X[dst, j]) ** 2, axis=1),
-                                np.ones(src.size, dtype=bool))
-            out[sel] = np.interp(np.log(np.maximum(reach[sel], 1)), np.log(lags), errs)
-    return out
 
 
 def index_segments(segments, labels=None, X=None, observed=None) -> "dict[str, list[int]]":
