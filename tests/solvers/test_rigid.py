@@ -177,6 +177,18 @@ def test_segment_fill_is_exact_on_rigid_segments_and_extrapolates():
     np.testing.assert_allclose(filled[done], truth[done], atol=1e-8)
 
 
+def test_a_marker_seen_in_three_frames_only_is_carried_without_an_error_estimate():
+    """Three frames with the marker and its mates are too few for a hold-out pair at any lag:
+    the marker is still carried by its mates (exactly, on a rigid body), its error unmeasured
+    (NaN), where the hold-out once failed on the empty curve."""
+    truth = _segment_motion()
+    X = truth.copy()
+    X[3:, 0] = np.nan
+    est, std, seg_of = segment_fill(X, None, {"a": [0, 1, 2, 3]})
+    assert np.isfinite(est[3:, 0]).all() and np.isnan(std[3:, 0]).all()
+    np.testing.assert_allclose(est[3:, 0], truth[3:, 0], atol=1e-8)
+
+
 def test_segment_fill_kept_or_not_gives_the_same_bits_and_callers_cannot_change_the_kept(
         monkeypatch):
     """A result small enough is kept and handed out as copies; a larger one is rescaled in place

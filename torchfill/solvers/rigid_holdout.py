@@ -29,7 +29,8 @@ def _lag_pairs(refs: np.ndarray, reach: float = np.inf):
     y = (np.arange(tag.size) - np.repeat(ends - m, m)) * np.repeat((c - 1) / (m - 1), m)
     y[ends - 1] = c - 1
     pick = np.round(y).astype(np.int64)
-    keep = np.concatenate(([True], (pick[1:] != pick[:-1]) | (tag[1:] != tag[:-1])))
+    keep = np.ones(pick.size, dtype=bool)               # no pairs (too few refs): none
+    keep[1:] = (pick[1:] != pick[:-1]) | (tag[1:] != tag[:-1])
     src, tag = refs[pick[keep]], tag[keep]
     return src, refs[np.searchsorted(refs, src + lags[tag])], tag
 
@@ -39,6 +40,8 @@ def _curve(src, dst, tag, sq, good) -> tuple[np.ndarray, np.ndarray]:
     reach ``dst - src`` and the RMS of the squared errors ``sq``; the errors made non-decreasing
     in reach."""
     d, tag, sq = (dst - src)[good], tag[good], sq[good]
+    if d.size == 0:                                     # nothing measured: no curve
+        return np.zeros(0), np.zeros(0)
     n = np.bincount(tag, minlength=1)
     order = np.lexsort((d, tag))
     first = np.cumsum(n) - n
