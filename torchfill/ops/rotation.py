@@ -50,7 +50,8 @@ def _kabsch(P: Tensor, Q: Tensor, w: Tensor) -> tuple[Tensor, Tensor]:
     P, Q = P - cp, Q - cq
     Pw = P * w[..., None]
     H = Pw.transpose(1, 2) @ Q                                          # cross-covariance
-    E0 = 0.5 * ((Pw * P).sum(dim=(1, 2)) + (w * (Q * Q).sum(dim=2)).sum(dim=1))  # >= the root
+    QQ = Q * Q                  # the squared norms added as torch's sum over 3 adds them, faster
+    E0 = 0.5 * ((Pw * P).sum(dim=(1, 2)) + (w * (QQ[..., 0] + QQ[..., 1] + QQ[..., 2])).sum(dim=1))
     R = _horn(H, E0)
     t = (cq - cp @ R.transpose(1, 2))[:, 0]
     return R, t

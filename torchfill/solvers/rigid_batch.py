@@ -113,24 +113,27 @@ def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
     part = [(j, M, W[a:b], src[a:b], dst[a:b], shape, firm)
             for (j, M, W, src, dst, shape, firm), a, b in cut]
     X, X0 = X
-    flat, J = X0.reshape(-1, 3), X.shape[1]         # rows of (frame, mate) taken: a fast gather
-    P, Q = (flat.take(np.concatenate([p[c][:, None] * J + p[1] for p in part]), axis=0)
-            for c in (3, 4))
+    J, n = X.shape[1], np.array([p[3].size for p in part])
+    src, dst = (np.concatenate([p[c] for p in part]) for c in (3, 4))
+    M = np.repeat(np.stack([p[1] for p in part]), n, axis=0)           # each row's mates
+    flat = X0.reshape(-1, 3)                        # rows of (frame, mate) taken: a fast gather
+    P, Q = (flat.take(f[:, None] * J + M, axis=0) for f in (src, dst))
     W = np.concatenate([p[2] for p in part])
-    firm = np.concatenate([np.full(p[3].size, p[6]) for p in part])
-    C = _consistency_pairs(P, Q, W > 0, part)
+    firm = np.repeat([p[6] for p in part], n)
+    C = _consistency_pairs(P, Q, W > 0, part, n, np.concatenate([src, dst]))
     if C is not None:
         W = W * C
     posed = ~firm | (((W > 0) & (C > FIRM)).sum(axis=1) >= 3 if C is not None else True)
     R, t = kabsch(*map(torch.from_numpy, (P, Q, W)))
-    x = np.concatenate([X[src, j] for j, _, _, src, *_ in part])
+    x = X.reshape(-1, 3).take(src * J + np.repeat([p[0] for p in part], n), axis=0)
     return np.einsum("nc,ndc->nd", x, R.numpy()) + t.numpy(), posed
 
 
-def _consistency_pairs(P, Q, use, part) -> np.ndarray | None:
-    """:func:`_consistency` in the rows' source and destination frames, multiplied; each
-    distinct (shape, frame, mates used) row computed once (a gap's frames are all carried from
-    the same reference frame, and from both of its edges). None where the jobs have no shape."""
+def _consistency_pairs(P, Q, use, part, n, frames) -> np.ndarray | None:
+    """:func:`_consistency` in the rows' source and destination frames (``frames``: those of
+    all rows, then these; ``n``: each job's rows), multiplied; each distinct (shape, frame,
+    mates used) row computed once (a gap's frames are all carried from the same reference
+    frame, and from both of its edges). None where the jobs have no shape."""
     if part[0][5] is None:
         return None
     k = use.shape[1]
@@ -138,8 +141,7 @@ def _consistency_pairs(P, Q, use, part) -> np.ndarray | None:
     shapes = [ids.setdefault(id(p[5]), len(ids)) for p in part]       # a task's carries share it
     one = [part[shapes.index(i)][5] for i in range(len(ids))]
     D0, band = np.stack([d for d, _ in one]), np.stack([b for _, b in one])
-    job = np.repeat(shapes, [p[3].size for p in part])
-    frames = np.concatenate([p[3] for p in part] + [p[4] for p in part])
+    job = np.repeat(shapes, n)
     job2, use2, P2 = np.concatenate([job, job]), np.concatenate([use, use]), np.concatenate([P, Q])
     if k + int(frames.max() + 1).bit_length() + len(ids).bit_length() < 62:
         key = ((job2 * (int(frames.max()) + 1) + frames) << k) + use2 @ (1 << np.arange(k))
