@@ -114,7 +114,7 @@ def _horn(H: Tensor, E0: Tensor) -> Tensor:
         if not bool(moving.any()):
             break
     A = [[N[i][j] - lam if i == j else N[i][j] for j in range(4)] for i in range(4)]
-    C = torch.stack([torch.stack(row, -1) for row in _adjugate_rows(A, *_minors(A))], -2)
+    C = torch.stack([c for row in _adjugate_rows(A, *_minors(A)) for c in row], -1).view(-1, 4, 4)
     pick = torch.diagonal(C, dim1=-2, dim2=-1).abs().argmax(dim=-1)
     q = C[torch.arange(C.shape[0]), pick]
     best = (q * q).sum(dim=-1)
@@ -124,11 +124,10 @@ def _horn(H: Tensor, E0: Tensor) -> Tensor:
         q[weak] = torch.linalg.eigh(Nw).eigenvectors[..., -1]
     q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)],
-        -2)
+    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+                       -1).view(-1, 3, 3)
 
 
 #: Newton steps on the characteristic polynomial at most (a good fit converges in four).
