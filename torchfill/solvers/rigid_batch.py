@@ -46,7 +46,9 @@ def _drive(tasks: list, X: np.ndarray | None = None, sizes=None) -> list:
     per mate count (a few large array operations instead of one small one per marker) on the
     positions ``X`` (NaN where not observed). Returns their return values in order."""
     out: list = [None] * len(tasks)
-    X = None if X is None else (X, np.nan_to_num(np.ascontiguousarray(X)))  # zeros once: a gather
+    if X is not None:                       # zeros for NaN once, and each coordinate's plane
+        X0 = np.nan_to_num(np.ascontiguousarray(X))
+        X = (X, X0, np.ascontiguousarray(X0.reshape(-1, X0.shape[2]).T))
     sizes = np.ones(len(tasks)) if sizes is None else np.asarray(sizes, float)
     wave = np.floor((np.cumsum(sizes) - sizes) / WAVE_ROWS)
     for w in np.unique(wave):
@@ -109,18 +111,19 @@ def _fit_rows(X: tuple, jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
 
 def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
     """One block of :func:`_fit_rows`: the rows ``[a, b)`` of each job of ``cut``; ``X``: the
-    positions and the same with zeros for NaN (:func:`_drive`)."""
+    positions, the same with zeros for NaN and its coordinates' planes (:func:`_drive`)."""
     part = [(j, M, W[a:b], src[a:b], dst[a:b], shape, firm)
             for (j, M, W, src, dst, shape, firm), a, b in cut]
-    X, X0 = X
+    X, X0, planes = X
     J, n = X.shape[1], np.array([p[3].size for p in part])
     src, dst = (np.concatenate([p[c] for p in part]) for c in (3, 4))
     M = np.repeat(np.stack([p[1] for p in part]), n, axis=0)           # each row's mates
-    flat = X0.reshape(-1, 3)                        # rows of (frame, mate) taken: a fast gather
-    P, Q = (flat.take(f[:, None] * J + M, axis=0) for f in (src, dst))
+    at = [f[:, None] * J + M for f in (src, dst)]  # rows of (frame, mate) taken: a fast gather
+    P, Q = (X0.reshape(-1, 3).take(i, axis=0) for i in at)
     W = np.concatenate([p[2] for p in part])
     firm = np.repeat([p[6] for p in part], n)
-    C = _consistency_pairs(P, Q, W > 0, part, n, np.concatenate([src, dst]))
+    C = _consistency_pairs(planes, np.concatenate(at), W > 0, part, n,
+                           np.concatenate([src, dst]))
     if C is not None:
         W = W * C
     posed = ~firm | (((W > 0) & (C > FIRM)).sum(axis=1) >= 3 if C is not None else True)
@@ -129,11 +132,12 @@ def _fit_block(X, cut: list) -> tuple[np.ndarray, np.ndarray]:
     return np.einsum("nc,ndc->nd", x, R.numpy()) + t.numpy(), posed
 
 
-def _consistency_pairs(P, Q, use, part, n, frames) -> np.ndarray | None:
-    """:func:`_consistency` in the rows' source and destination frames (``frames``: those of
-    all rows, then these; ``n``: each job's rows), multiplied; each distinct (shape, frame,
-    mates used) row computed once (a gap's frames are all carried from the same reference
-    frame, and from both of its edges). None where the jobs have no shape."""
+def _consistency_pairs(planes, at, use, part, n, frames) -> np.ndarray | None:
+    """:func:`_consistency` in the rows' source and destination frames (``frames`` and ``at``,
+    the mates' flat indices into the coordinates' ``planes``: those of all rows, then these;
+    ``n``: each job's rows), multiplied; each distinct (shape, frame, mates used) row computed
+    once (a gap's frames are all carried from the same reference frame, and from both of its
+    edges). None where the jobs have no shape."""
     if part[0][5] is None:
         return None
     k = use.shape[1]
@@ -142,14 +146,14 @@ def _consistency_pairs(P, Q, use, part, n, frames) -> np.ndarray | None:
     one = [part[shapes.index(i)][5] for i in range(len(ids))]
     D0, band = np.stack([d for d, _ in one]), np.stack([b for _, b in one])
     job = np.repeat(shapes, n)
-    job2, use2, P2 = np.concatenate([job, job]), np.concatenate([use, use]), np.concatenate([P, Q])
+    job2, use2 = np.concatenate([job, job]), np.concatenate([use, use])
     if k + int(frames.max() + 1).bit_length() + len(ids).bit_length() < 62:
         key = ((job2 * (int(frames.max()) + 1) + frames) << k) + use2 @ (1 << np.arange(k))
         _, first, back = np.unique(key, return_index=True, return_inverse=True)
-        job2, use2, P2 = job2[first], use2[first], P2[first]
+        job2, use2, at = job2[first], use2[first], at[first]
     else:                                                   # the key would overflow
         back = np.arange(job2.size)
-    C = _consistency(P2, use2, D0, band, job2)[back.reshape(-1)]
+    C = _consistency([x.take(at) for x in planes], use2, D0, band, job2)[back.reshape(-1)]
     return C[:job.size] * C[job.size:]
 
 
@@ -160,24 +164,25 @@ def _kabsch_rows(jobs: list) -> list[tuple[np.ndarray, np.ndarray]]:
     return list(zip(np.split(R.numpy(), cut), np.split(t.numpy(), cut)))
 
 
-def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarray,
+def _consistency(P: list, use: np.ndarray, D0: np.ndarray, band: np.ndarray,
                  shape: np.ndarray) -> np.ndarray:
-    """Per frame and mate (n, k), a weight factor in (0, 1]: 1 while the mate's distances to the
-    other used mates stay within ``CONSISTENT`` x their bands ``band`` of their medians ``D0``
-    (each ``(s, k, k)``, row ``i`` taking ``shape[i]``; see :func:`_shape`), falling as
+    """Per frame and mate (n, k) of the mates' coordinates ``P`` (one (n, k) array each), a
+    weight factor in (0, 1]: 1 while the mate's distances to the other used mates stay within
+    ``CONSISTENT`` x their bands ``band`` of their medians ``D0`` (each ``(s, k, k)``, row ``i``
+    taking ``shape[i]``; see :func:`_shape`), falling as
     ``(CONSISTENT / z)^2`` beyond, with ``z`` the lower median of the mate's deviations in
     bands: a ghost or a swapped label in a mate's track (one point far from its place in the
     segment) stops steering the fit, while one bad mate cannot condemn the good ones it is
     measured against. Each pair is measured once; the medians are sorted only where they leave
     the band."""
-    k = P.shape[1]
+    k = use.shape[1]
     a, b = np.triu_indices(k, 1)
     Zp = np.abs(_pair_norms(P, a, b) - D0[:, a, b][shape]) / band[:, a, b][shape]
     used = use[:, a] & use[:, b] & np.isfinite(Zp)                     # pairs used
     mates = np.zeros((a.size, k))                                       # each pair's two mates
     mates[np.arange(a.size), a] = mates[np.arange(a.size), b] = 1.0
     n = used.astype(float) @ mates
-    mid = np.clip((n - 1) // 2, 0, None)
+    mid = np.maximum(np.floor((n - 1) * 0.5), 0.0)     # (n - 1) // 2 of counts, at least 0
     far = (n > 0) & (n - (used & (Zp > CONSISTENT)).astype(float) @ mates <= mid)
     C = np.ones(n.shape)                                   # the lower median within the band
     rows = np.flatnonzero(far.any(axis=1))
@@ -192,13 +197,12 @@ def _consistency(P: np.ndarray, use: np.ndarray, D0: np.ndarray, band: np.ndarra
     return C
 
 
-def _pair_norms(P: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``norm_last(P[:, a] - P[:, b])`` for points ``P`` (n, k, 3), the same bits: the squares
-    added one coordinate after another, each coordinate's differences taken from its own
-    contiguous (n, k) copy (a third of the time of the (n, pairs, 3) gathers)."""
+def _pair_norms(P: list, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``norm_last`` of the differences of the points ``a`` and ``b`` (pairs of columns) of
+    the coordinates ``P`` (one (n, k) array each), the same bits: the squares added one
+    coordinate after another (a third of the time of (n, pairs, 3) gathers)."""
     s = None
-    for c in range(P.shape[2]):
-        Pc = np.ascontiguousarray(P[:, :, c])
+    for Pc in P:
         d = Pc[:, a] - Pc[:, b]
         s = d * d if s is None else s + d * d
     return np.sqrt(s)
