@@ -343,18 +343,20 @@ def _soft_distances(F, free, pairs: RigidPairs) -> None:
 def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     """``SOFT_ITER`` Jacobi steps of the soft distances on the frames ``F`` (in place), over the
     (frame, pair) entries with a free member only (a few of the pairs in each frame), on the
-    samples those entries touch only (gathered once, written back at the end).
+    samples those entries touch only (gathered once, written back at the end); the moves are
+    summed over the free samples among those only (the others never move).
     ``cone``: each pair's observed mean direction and angular range (see :func:`_unseen_turn`)."""
     T, J, D = F.shape
     t, p = np.nonzero(free[:, j] | free[:, k])
     a, b, d0, band = j[p], k[p], d0[p], band[p]
-    ia, ib, rows, cols = _gathered(t * J + a, t * J + b, T, J)
+    ia, ib, rows, cols = _gathered(t * J + a, t * J + b, T, J, free)
     P = F[rows, cols]
     if cone is not None:
         band = band + d0 * (1 - cone[2][p]) * _unseen_turn(P.take(ia, 0) - P.take(ib, 0),
                                                             cone[0][p], cone[1][p])
     fa, fb = free[t, a], free[t, b]
     share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
+    size = int(free[rows, cols].sum())          # the free samples: the first ``size`` of P
     moved = False
     for _ in range(SOFT_ITER):
         diff = P.take(ia, 0) - P.take(ib, 0)                               # (entries, D)
@@ -365,45 +367,61 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
             break
         on = np.flatnonzero(use)            # the others add 0.0 (NaN: see _poison)
         step = (SOFT_WEIGHT * (err[on] / n[on]))[:, None] * diff[on]
-        sa, sb, ia_on, ib_on = share_a[on], share_b[on], ia[on], ib[on]
-        C = _sum_at(_cells(ia_on, D), sa[:, None] * step, P.size) - \
-            _sum_at(_cells(ib_on, D), sb[:, None] * step, P.size)
-        count = np.bincount(ia_on[sa > 0], minlength=P.shape[0]) + \
-            np.bincount(ib_on[sb > 0], minlength=P.shape[0])
-        C = C.reshape(P.shape)
-        C /= np.maximum(count, 1)[:, None]
-        _poison(C, diff, n, ia, ib)
-        P += C
+        C = _mean_moves(step, [(ia[on], share_a[on], fa[on]), (ib[on], share_b[on], fb[on])],
+                        size)
+        bad = np.flatnonzero(~np.isfinite(n))
+        _poison(C, diff[bad], [ia[bad], ib[bad]], [fa[bad], fb[bad]])
+        P[:size] += C
         moved = True
     if moved:                       # a step adds 0.0 to the untouched samples: -0.0 becomes 0.0
         F += 0.0
+        P += 0.0
         F[rows, cols] = P
 
 
-def _poison(C: np.ndarray, diff: np.ndarray, n: np.ndarray, ia: np.ndarray,
-            ib: np.ndarray) -> None:
+def _mean_moves(step: np.ndarray, sides: list, size: int) -> np.ndarray:
+    """A Jacobi step's mean move of each of ``size`` samples: the entries' ``step`` (n, D) added
+    to their first samples, taken from their second ones, each ``(place, share, moves)`` of
+    ``sides`` giving the entries' sample there, its share of the step and whether it moves; each
+    sample's sum (in the entries' order) divided by the entries that move it. A sample that
+    does not move would add 0.0 to its sum (see :func:`_sum_at`)."""
+    D = step.shape[1]
+    C, count = [], np.zeros(size, dtype=np.int64)
+    for place, share, mine in sides:
+        C.append(_sum_at(_cells(place[mine], D), share[mine, None] * step[mine], size * D))
+        count += np.bincount(place[mine], minlength=size)
+    C = (C[0] - C[1]).reshape(size, D)
+    C /= np.maximum(count, 1)[:, None]
+    return C
+
+
+def _poison(C: np.ndarray, diff: np.ndarray, places: list, mine: list) -> None:
     """A Jacobi step's mean moves ``C`` (samples x D, in place) with a sample's coordinate
-    held where an entry's difference ``diff`` is not finite there (its zero step times that NaN
-    made the sum NaN, then 0), and any other NaN or infinity as ``np.nan_to_num`` makes it."""
-    bad = np.flatnonzero(~np.isfinite(n))
-    if bad.size:
+    held where the difference ``diff`` of an entry without a finite distance is not finite
+    there (its zero step times that NaN made the sum NaN, then 0): ``places`` the entries'
+    samples on each side that move (``mine``); any other NaN or infinity as ``np.nan_to_num``
+    makes it."""
+    if diff.size:
         held = np.zeros(C.shape, dtype=bool)
-        np.logical_or.at(held, ia[bad], ~np.isfinite(diff[bad]))
-        np.logical_or.at(held, ib[bad], ~np.isfinite(diff[bad]))
+        for place, m in zip(places, mine):
+            np.logical_or.at(held, place[m], ~np.isfinite(diff[m]))
         C[held] = 0.0
     if not np.isfinite(C).all():
         np.nan_to_num(C, copy=False)
 
 
-def _gathered(sa: np.ndarray, sb: np.ndarray, T: int, J: int):
+def _gathered(sa: np.ndarray, sb: np.ndarray, T: int, J: int, first: np.ndarray):
     """Each entry's two samples ``sa``, ``sb`` (flat indices into (T, J)) as places ``ia``, ``ib``
-    among the samples touched, sorted, each once (their ``rows``, ``cols``): what
-    ``np.unique(..., return_inverse=True)`` gives, by a table of the (T, J) samples."""
-    hit = np.zeros(T * J, dtype=bool)
-    hit[sa] = True
-    hit[sb] = True
-    touched = np.flatnonzero(hit)
-    place = np.cumsum(hit) - 1
+    among the samples touched, each once (their ``rows``, ``cols``): those of ``first`` (T, J)
+    first, then the others, each part sorted (``np.unique(..., return_inverse=True)`` of the
+    two parts), by a table of the (T, J) samples."""
+    hit = np.zeros(T * J, dtype=np.int8)
+    hit[sa] = 1
+    hit[sb] = 1
+    hit[hit.view(bool) & first.ravel()] = 2
+    touched = np.concatenate([np.flatnonzero(hit == 2), np.flatnonzero(hit == 1)])
+    place = np.empty(T * J, dtype=np.int64)
+    place[touched] = np.arange(touched.size)
     rows, cols = np.divmod(touched, J)
     return place[sa], place[sb], rows, cols
 

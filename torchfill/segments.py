@@ -450,16 +450,18 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     block = max(1, PAIR_BLOCK // max(T, 1))
     for a in range(0, n, block):
         jb, kb = j[a:a + block], k[a:a + block]
-        both = (obs.take(jb, axis=0) & obs.take(kb, axis=0)).T     # (T, n)
-        V = (Xt.take(jb, axis=0) - Xt.take(kb, axis=0)).transpose(1, 2, 0)     # (D, T, n)
-        D = _norm_first(V)
+        both = obs.take(jb, axis=0) & obs.take(kb, axis=0)                 # (n, T)
+        V = Xt.take(jb, axis=0) - Xt.take(kb, axis=0)                      # (n, D, T)
+        D = _norm_coords(V)                                                # (n, T)
         D[~both] = np.nan
-        c = both.sum(axis=0)
+        c = both.sum(axis=1)
         with np.errstate(all="ignore"):
-            m = _col_quantile(_sort_cols(D), c, 0.5)
-            dev = _sort_cols(np.abs(D - m))
-            s = 1.4826 * _col_quantile(dev, c, 0.5)
-            w = _col_quantile(dev, c, 0.95)
+            S = np.sort(D, axis=1)
+            m = _col_quantile(S.T, c, 0.5)
+            dev = np.abs(S - m[:, None])        # |D - m| in the order of S: falls, then rises
+            dev.sort(axis=1)                    # (numpy sorts that shape faster)
+            s = 1.4826 * _col_quantile(dev.T, c, 0.5)
+            w = _col_quantile(dev.T, c, 0.95)
         keep = c >= min_frames
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
@@ -469,44 +471,57 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
             direction[a:a + block], cone[a:a + block] = _orientation(V, D, c, keep)
         elif at.any():
             direction[a:a + block][at], cone[a:a + block][at] = _orientation(
-                V[..., at], D[:, at], c[at], keep[at])
+                V[at], D[at], c[at], keep[at])
         count[a:a + block] = c
     return PairStats(j, k, med, mad, wide, count, X.shape[1], direction, cone)
 
 
-def _norm_first(V: np.ndarray) -> np.ndarray:
-    """:func:`torchfill.metrics.norm_last` over the first axis of ``V`` (D, ...): the same
+def _norm_coords(V: np.ndarray) -> np.ndarray:
+    """:func:`torchfill.metrics.norm_last` over the coordinates of ``V`` (n, D, T): the same
     bits, the squares added one coordinate after another."""
-    if not 0 < V.shape[0] < 8:
-        return norm_last(np.ascontiguousarray(np.moveaxis(V, 0, -1)))
-    s = V[0] * V[0]
-    for c in range(1, V.shape[0]):
-        s += V[c] * V[c]
+    if not 0 < V.shape[1] < 8:
+        return norm_last(np.ascontiguousarray(np.moveaxis(V, 1, -1)))
+    s = V[:, 0] * V[:, 0]
+    for c in range(1, V.shape[1]):
+        s += V[:, c] * V[:, c]
     return np.sqrt(s, out=s)
 
 
-def _sort_cols(A: np.ndarray) -> np.ndarray:
-    """``np.sort(A, axis=0)`` of a (T, n) array, sorted as the contiguous rows of its transpose
-    (half the time of numpy's strided sort; equal values are equal bits: no -0.0 here)."""
-    S = A.T.copy()                      # a copy even where A.T is contiguous (one column)
-    S.sort(axis=1)
-    return S.T
-
-
 def _orientation(V: np.ndarray, D: np.ndarray, c: np.ndarray, keep: np.ndarray):
-    """Mean unit vector of each pair's difference ``V`` (D, T, n) over its frames with a finite
-    distance ``D`` (T, n), and the 95th percentile of the angle to it (NaN where not ``keep``)."""
+    """Mean unit vector of each pair's difference ``V`` (n, D, T) over its frames with a finite
+    distance ``D`` (n, T), and the 95th percentile of the angle to it (NaN where not ``keep``)."""
     fin = np.isfinite(D)
-    U = np.zeros(V.shape[1:] + V.shape[:1])     # (T, n, D): einsum's bits depend on the layout
+    U = np.zeros(V.shape)
     with np.errstate(all="ignore"):
-        np.divide(V, D, out=np.moveaxis(U, -1, 0), where=fin)
+        np.divide(V, D[:, None], out=U, where=fin[:, None])
+        U = U.transpose(2, 0, 1).copy()     # (T, n, D): the sum's order and einsum's bits
         m = U.sum(axis=0)
         m /= np.linalg.norm(m, axis=-1, keepdims=True)
         turn = np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0)
-        np.negative(turn, out=turn)             # -cos: in the angles' order (arccos falls)
-        turn[~fin] = np.nan
-        cone = _col_quantile(_sort_cols(turn), c, 0.95, lambda x: np.arccos(-x))
+        R = np.empty(D.shape)
+        np.negative(turn.T, out=R)              # -cos: in the angles' order (arccos falls)
+        R[~fin] = -np.inf                       # below every angle's: out of the top
+        cone = _top_quantile(R, c, 0.95, lambda x: np.arccos(-x))
     return np.where(keep[:, None], m, np.nan), np.where(keep, cone, np.nan)
+
+
+def _top_quantile(R: np.ndarray, n: np.ndarray, q: float, f) -> np.ndarray:
+    """:func:`_col_quantile` of each row of ``R`` (m, T) whose ``n`` values that count are its
+    largest (the others -inf; NaN among them last, as a sort puts it), for ``q`` near 1: from
+    the row's top values only (a partition, then a sort of those: not a sort of the row)."""
+    T = R.shape[1]
+    top = min(T, int((1 - q) * T) + 3)      # > (1 - q)(n - 1) + 2: the two order statistics
+    if top == 0:
+        return np.full(R.shape[0], np.nan)
+    S = np.partition(R, T - top, axis=1)[:, T - top:]
+    S.sort(axis=1)
+    p = q * np.maximum(n - 1, 0)
+    lo = np.floor(p).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    rows = np.arange(R.shape[0])
+    a = f(S[rows, np.clip(top - n + lo, 0, top - 1)])
+    b = f(S[rows, np.clip(top - n + hi, 0, top - 1)])
+    return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
 
 
 def _col_quantile(S: np.ndarray, n: np.ndarray, q: float, f=None) -> np.ndarray:
