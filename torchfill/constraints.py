@@ -226,8 +226,18 @@ def _finite(F: np.ndarray) -> np.ndarray:
 
 
 def _runs(mask: np.ndarray, T: int):
-    for j, a, b in gap_runs(mask):
+    for j, a, b in zip(*(x.tolist() for x in _gaps(mask))):
         yield j, a, b, a == 0, b == T
+
+
+def _gaps(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`torchfill.metrics.gap_runs` of ``mask`` (T, J) as arrays: each run's marker,
+    start and stop (exclusive), markers in order, without a loop over the markers."""
+    edge = np.zeros((mask.shape[1], mask.shape[0] + 2), dtype=np.int8)
+    edge[:, 1:-1] = mask.T
+    edge = np.diff(edge, axis=1)
+    j, a = np.nonzero(edge == 1)
+    return j, a, np.nonzero(edge == -1)[1]
 
 
 def _limit_extrapolation(F, free, extrapolate, report, support) -> np.ndarray:
@@ -357,55 +367,62 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     fa, fb = free[t, a], free[t, b]
     share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
     size = int(free[rows, cols].sum())          # the free samples: the first ``size`` of P
+    Q = np.ascontiguousarray(P.T)               # (D, samples): a coordinate a row
     moved = False
     for _ in range(SOFT_ITER):
-        diff = P.take(ia, 0) - P.take(ib, 0)                               # (entries, D)
-        n = norm_last(diff)
+        diff = Q.take(ia, 1) - Q.take(ib, 1)                               # (D, entries)
+        n = diff[0] * diff[0]                   # norm_last's sum, a coordinate at a time
+        for c in range(1, D):
+            n = n + diff[c] * diff[c]
+        n = np.sqrt(n)
         err = np.clip(n - d0, -band, band) - (n - d0)      # back inside the observed band
         use = np.isfinite(n) & (n > 0) & (err != 0)
         if not use.any():
             break
         on = np.flatnonzero(use)            # the others add 0.0 (NaN: see _poison)
-        step = (SOFT_WEIGHT * (err[on] / n[on]))[:, None] * diff[on]
+        step = SOFT_WEIGHT * (err[on] / n[on]) * diff[:, on]
         C = _mean_moves(step, [(ia[on], share_a[on], fa[on]), (ib[on], share_b[on], fb[on])],
                         size)
         bad = np.flatnonzero(~np.isfinite(n))
-        _poison(C, diff[bad], [ia[bad], ib[bad]], [fa[bad], fb[bad]])
-        P[:size] += C
+        _poison(C, diff[:, bad], [ia[bad], ib[bad]], [fa[bad], fb[bad]])
+        Q[:, :size] += C
         moved = True
     if moved:                       # a step adds 0.0 to the untouched samples: -0.0 becomes 0.0
         F += 0.0
-        P += 0.0
-        F[rows, cols] = P
+        Q += 0.0
+        F[rows, cols] = Q.T
 
 
 def _mean_moves(step: np.ndarray, sides: list, size: int) -> np.ndarray:
-    """A Jacobi step's mean move of each of ``size`` samples: the entries' ``step`` (n, D) added
-    to their first samples, taken from their second ones, each ``(place, share, moves)`` of
-    ``sides`` giving the entries' sample there, its share of the step and whether it moves; each
-    sample's sum (in the entries' order) divided by the entries that move it. A sample that
-    does not move would add 0.0 to its sum (see :func:`_sum_at`)."""
-    D = step.shape[1]
-    C, count = [], np.zeros(size, dtype=np.int64)
-    for place, share, mine in sides:
-        C.append(_sum_at(_cells(place[mine], D), share[mine, None] * step[mine], size * D))
-        count += np.bincount(place[mine], minlength=size)
-    C = (C[0] - C[1]).reshape(size, D)
-    C /= np.maximum(count, 1)[:, None]
+    """A Jacobi step's mean move (D, ``size``) of each of ``size`` samples: the entries' ``step``
+    (D, n) added to their first samples, taken from their second ones, each ``(place, share,
+    moves)`` of ``sides`` giving the entries' sample there, its share of the step and whether it
+    moves; each sample's sum (in the entries' order) divided by the entries that move it. A
+    sample that does not move would add 0.0 to its sum (see :func:`_sum_at`)."""
+    C, count = np.empty((step.shape[0], size)), np.zeros(size, dtype=np.int64)
+    for side, (place, share, mine) in enumerate(sides):
+        at, weight, moves = place[mine], share[mine], step[:, mine]
+        for c in range(step.shape[0]):
+            if side == 0:
+                C[c] = _sum_at(at, weight * moves[c], size)
+            else:
+                C[c] -= _sum_at(at, weight * moves[c], size)
+        count += np.bincount(at, minlength=size)
+    C /= np.maximum(count, 1)
     return C
 
 
 def _poison(C: np.ndarray, diff: np.ndarray, places: list, mine: list) -> None:
-    """A Jacobi step's mean moves ``C`` (samples x D, in place) with a sample's coordinate
-    held where the difference ``diff`` of an entry without a finite distance is not finite
-    there (its zero step times that NaN made the sum NaN, then 0): ``places`` the entries'
-    samples on each side that move (``mine``); any other NaN or infinity as ``np.nan_to_num``
-    makes it."""
+    """A Jacobi step's mean moves ``C`` (D x samples, in place) with a sample's coordinate
+    held where the difference ``diff`` (D x entries) of an entry without a finite distance is
+    not finite there (its zero step times that NaN made the sum NaN, then 0): ``places`` the
+    entries' samples on each side that move (``mine``); any other NaN or infinity as
+    ``np.nan_to_num`` makes it."""
     if diff.size:
-        held = np.zeros(C.shape, dtype=bool)
+        held = np.zeros(C.shape[::-1], dtype=bool)
         for place, m in zip(places, mine):
-            np.logical_or.at(held, place[m], ~np.isfinite(diff[m]))
-        C[held] = 0.0
+            np.logical_or.at(held, place[m], ~np.isfinite(diff[:, m].T))
+        C[held.T] = 0.0
     if not np.isfinite(C).all():
         np.nan_to_num(C, copy=False)
 
@@ -439,11 +456,6 @@ def _unseen_turn(diff: np.ndarray, direction: np.ndarray, cone: np.ndarray) -> n
         return np.nan_to_num(np.maximum(angle - cone, 0.0))
 
 
-def _cells(index: np.ndarray, D: int) -> np.ndarray:
-    """The flat positions of rows ``index`` of an (n, D) array, row after row."""
-    return (index[:, None] * D + np.arange(D)).ravel()
-
-
 def _sum_at(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     """``out[index[i]] += values.flat[i]`` over a zero vector of ``size`` (NaN where a NaN was
     added), in the order of ``index``."""
@@ -458,7 +470,7 @@ def _limit_steps(F, missing, limit: float, report, end_limit: float | None = Non
     end_limit = limit if end_limit is None else end_limit
     T = F.shape[0]
     fin = _finite(F)
-    for j, a, b, _, _ in _runs(missing & fin, T):
+    for j, a, b in _steep(F, *_gaps(missing & fin), fin, limit, end_limit):
         left = F[a - 1, j] if a > 0 and fin[a - 1, j] else None
         right = F[b, j] if b < T and fin[b, j] else None
         parts = [F[a:b, j]]
@@ -470,13 +482,29 @@ def _limit_steps(F, missing, limit: float, report, end_limit: float | None = Non
         steps = np.diff(path, axis=0)
         both = left is not None and right is not None
         cap = limit if both else end_limit
-        if steps.size == 0 or np.linalg.norm(steps, axis=1).max() <= cap:
-            continue
         steps = _shorten(steps, 0.999 * cap, both=both)
         start = path[-1] - steps.sum(axis=0) if left is None and right is not None else path[0]
         new = start + np.concatenate([np.zeros((1, F.shape[2])), np.cumsum(steps, axis=0)])
         F[a:b, j] = new[int(left is not None):len(new) - int(right is not None)]
         report.shortened_gaps += 1
+
+
+def _steep(F, j, a, b, fin, limit: float, end_limit: float):
+    """The gaps (``j``, ``a``, ``b`` arrays) of ``F``'s finite samples ``fin`` with a step longer
+    than their limit, each step of the gap's path (its finite edges, its samples) measured at
+    once: ``limit`` where both edges are finite, ``end_limit`` where one is."""
+    T = F.shape[0]
+    if j.size == 0 or T < 2:
+        return []
+    left = (a > 0) & fin[np.maximum(a - 1, 0), j]
+    right = (b < T) & fin[np.minimum(b, T - 1), j]
+    lo, hi = a - left, b - 1 + right            # the steps t -> t + 1 for t in [lo, hi)
+    step = np.append(norm_last(F[1:] - F[:-1]).T.ravel(), 0.0)     # a marker's steps in a row
+    base = j * (T - 1)
+    top = np.maximum.reduceat(step, np.stack([base + lo, base + hi], 1).ravel())[::2]
+    cap = np.where(left & right, limit, end_limit)
+    over = (hi > lo) & ~(top <= cap)
+    return zip(j[over].tolist(), a[over].tolist(), b[over].tolist())
 
 
 def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> np.ndarray:
@@ -564,14 +592,18 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
         donors = rigid_donors(X, seen, pairs, segments)
     limits = observed_limits(X, seen)           # the same observed samples in every fill
 
+    dtype = torch.empty(0, dtype=fills.dtype).numpy().dtype
+
     def one(F: torch.Tensor):
+        own = F.cpu().numpy()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return constrain(F.cpu().numpy(), miss, pairs=pairs, donors=donors, segments=segments,
-                             limits=limits)
+            G, report = constrain(own, miss, pairs=pairs, donors=donors, segments=segments,
+                                  limits=limits)
+        G = G.astype(dtype, copy=False)
+        np.copyto(G, own, where=~np.isfinite(G))    # the candidate's own value where left NaN
+        return G, report
     done = list(thread_map(one, fills))
     if done[-1][1].rigid_done is not None:
         donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)
-    out = torch.stack([torch.from_numpy(G) for G, _ in done]).to(device=fills.device,
-                                                                   dtype=fills.dtype)
-    return torch.where(torch.isfinite(out), out, fills), donor
+    return torch.from_numpy(np.stack([G for G, _ in done])).to(fills.device), donor
