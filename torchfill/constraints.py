@@ -491,20 +491,24 @@ def _limit_steps(F, missing, limit: float, report, end_limit: float | None = Non
 
 def _steep(F, j, a, b, fin, limit: float, end_limit: float):
     """The gaps (``j``, ``a``, ``b`` arrays) of ``F``'s finite samples ``fin`` with a step longer
-    than their limit, each step of the gap's path (its finite edges, its samples) measured at
+    than their limit, the steps of every gap's path (its finite edges, its samples) measured at
     once: ``limit`` where both edges are finite, ``end_limit`` where one is."""
     T = F.shape[0]
-    if j.size == 0 or T < 2:
-        return []
     left = (a > 0) & fin[np.maximum(a - 1, 0), j]
     right = (b < T) & fin[np.minimum(b, T - 1), j]
     lo, hi = a - left, b - 1 + right            # the steps t -> t + 1 for t in [lo, hi)
-    step = np.append(norm_last(F[1:] - F[:-1]).T.ravel(), 0.0)     # a marker's steps in a row
-    base = j * (T - 1)
-    top = np.maximum.reduceat(step, np.stack([base + lo, base + hi], 1).ravel())[::2]
-    cap = np.where(left & right, limit, end_limit)
-    over = (hi > lo) & ~(top <= cap)
-    return zip(j[over].tolist(), a[over].tolist(), b[over].tolist())
+    n = hi - lo
+    over = n > 0
+    j, a, b, lo, n = j[over], a[over], b[over], lo[over], n[over]
+    if j.size == 0:
+        return []
+    first = np.cumsum(n) - n
+    t = np.arange(n.sum()) - np.repeat(first - lo, n)
+    k = np.repeat(j, n)
+    top = np.maximum.reduceat(norm_last(F[t + 1, k] - F[t, k]), first)
+    cap = np.where(left & right, limit, end_limit)[over]
+    steep = ~(top <= cap)
+    return zip(j[steep].tolist(), a[steep].tolist(), b[steep].tolist())
 
 
 def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> np.ndarray:
