@@ -46,6 +46,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import torch
+import torch.nn.functional as F
 
 from .. import ops
 from ..runtime.cache import Memo
@@ -147,15 +148,52 @@ def border_offsets(pred_edge: tuple[Tensor | None, Tensor | None],
     return tuple(None if p is None or q is None else p - q for p, q in zip(pred_edge, true_edge))
 
 
-def kde(samples: Tensor, x: Tensor) -> Tensor:
-    """Gaussian kernel density of ``samples`` at ``x``, normal-reference bandwidth from the MAD."""
-    med = samples.median()
-    sig = (samples - med).abs().median() / 0.6745
-    if not bool(sig > 0):
-        sig = samples.max() - samples.min()
-    u = sig * (4.0 / (3.0 * samples.numel())) ** 0.2 if bool(sig > 0) else torch.ones_like(sig)
-    z = (x[:, None] - samples[None]) / u
-    return torch.exp(-0.5 * z ** 2).mean(1) / (u * (2 * torch.pi) ** 0.5)
+class Density:
+    """Gaussian kernel density of ``samples``, normal-reference bandwidth ``u`` from the MAD."""
+
+    def __init__(self, samples: Tensor):
+        med = samples.median()
+        sig = (samples - med).abs().median() / 0.6745
+        if not bool(sig > 0):
+            sig = samples.max() - samples.min()
+        self.u = sig * (4.0 / (3.0 * samples.numel())) ** 0.2 if bool(sig > 0) else torch.ones_like(sig)
+        self.samples, self.sorted = samples.contiguous(), samples.sort().values
+
+    def __call__(self, x: Tensor) -> Tensor:
+        z = (x[:, None] - self.samples[None]).div_(self.u)
+        v = z.pow_(2).mul_(-0.5)
+        rows = self._underflow_rows(x).nonzero().flatten()
+        exact = exp_neg(v[rows])
+        e = F.threshold_(v.clamp_(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)
+        e[rows] = exact
+        return e.mean(1) / (self.u * (2 * torch.pi) ** 0.5)
+
+    def _underflow_rows(self, x: Tensor) -> Tensor:
+        """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (the kernel between -700
+        and -749 in the exponent, where :func:`exp_neg`'s care is needed); in every other row
+        the kernel is either over exp(-700) or exactly 0."""
+        near, far = 37.3 * self.u, 38.7 * self.u
+        flag = torch.zeros_like(x, dtype=torch.bool)
+        for lo, hi in ((x - far, x - near), (x + near, x + far)):
+            flag |= torch.searchsorted(self.sorted, hi, right=True) > torch.searchsorted(self.sorted, lo)
+        return flag
+
+
+def exp_neg(v: Tensor) -> Tensor:
+    """``torch.exp(v)`` bit for bit for ``v`` <= 0. libm's exponential is slow (tens of times)
+    where its result falls under the normal range; those arguments (< -700) are exponentiated
+    only where the result is not 0."""
+    e = F.threshold_(v.clamp(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)   # 0 from _EXP_LOW down
+    band = v > -746.0
+    band &= e == 0
+    band = band.nonzero(as_tuple=True)
+    if band[0].numel():
+        e[band] = torch.exp(v[band])
+    return e
+
+
+_EXP_LOW = -700.0
+_EXP_LOW_VALUE = float(torch.tensor(_EXP_LOW, dtype=torch.float64).exp())
 
 
 def stride_rows(rows: Tensor, n_max: int) -> Tensor:
@@ -189,7 +227,7 @@ def lstsq(A: Tensor, y: Tensor) -> Tensor:
 def grnn(Xtr: Tensor, Ytr: Tensor, X: Tensor, spread: float) -> Tensor:
     """Generalized regression network (MATLAB newgrnn/sim): kernel-weighted mean of ``Ytr``."""
     b2 = torch.log(torch.tensor(2.0, dtype=X.dtype)) / spread ** 2
-    A = torch.exp(-b2 * torch.cdist(X, Xtr) ** 2)
+    A = exp_neg(torch.cdist(X, Xtr).pow_(2).mul_(-b2))
     s = A.sum(1, keepdim=True)
     return torch.where(s > 0, A @ Ytr / s.clamp(min=1e-300), Ytr.mean(0).expand(X.shape[0], -1))
 
@@ -269,6 +307,7 @@ class _Local:
         q = torch.tensor([0.01, 0.99], dtype=Y.dtype, device=Y.device)
         self.ranges = [tuple(torch.quantile(d, q)) for d in dist]
         self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
+        self._densities: list[Density] | None = None
 
     def _train(self, X: Tensor, rows: Tensor, models: set[str]) -> None:
         """LPR's coefficients and LGRNN's training pairs on the frame-shape features ``X``."""
@@ -283,6 +322,26 @@ class _Local:
         if "lgrnn" in models:
             self.train = (self.Xl[tr, 1:], Yn[tr])
 
+    def _interpolate(self, a: int, b: int) -> Tensor:
+        """LI: marker k's local coordinates interpolated linearly over the gap rows [a, b) (the
+        observed border held at an end of the recording), as :func:`ops.interp_linear`."""
+        T, L = self.T, b - a
+        edges = self.p0p[[i for i in (a - 1, b) if 0 <= i < T]]
+        if not 0 < edges.shape[0] or not bool(torch.isfinite(edges).all()):
+            lo, hi = max(a - 1, 0), min(b + 1, T)
+            return ops.interp_linear(torch.nan_to_num(self.p0p[lo:hi]),
+                                     torch.isfinite(self.p0p[lo:hi]))[a - lo:a - lo + L]
+        if edges.shape[0] == 1:
+            return edges.expand(L, -1)
+        s = torch.arange(1, L + 1, dtype=edges.dtype, device=edges.device)[:, None] / (L + 1)
+        return edges[0] + s * (edges[1] - edges[0])
+
+    def densities(self) -> list[Density]:
+        """The reference distances' densities (from the observed frames), made once."""
+        if self._densities is None:
+            self._densities = [Density(s) for s in self.samples]
+        return self._densities
+
     def _edges(self, a: int, b: int):
         T = self.T
         return (self.p0p[a - 1] if a > 0 else None, self.p0p[b] if b < T else None)
@@ -292,8 +351,7 @@ class _Local:
         T = self.T
         lo, hi = max(a - 1, 0), min(b + 1, T)
         if model == "li":
-            L = ops.interp_linear(torch.nan_to_num(self.p0p[lo:hi]),
-                                  torch.isfinite(self.p0p[lo:hi]))[a - lo:a - lo + b - a]
+            L = self._interpolate(a, b)
         else:
             if model == "lpr":
                 pred = self.Xp[lo:hi] @ self.beta
@@ -352,8 +410,8 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
     L, m = b - a, len(preds)
     Ps = symfilter(torch.stack(preds, 1).reshape(L, 3 * m), window).reshape(L, m, 3)
     w = torch.ones(L, m, dtype=Ps.dtype, device=Ps.device)
-    for Q, s in zip(local.raw, local.samples):
-        w = w * kde(s, torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
+    for Q, density in zip(local.raw, local.densities()):
+        w = w * density(torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
     w = symfilter(ops.clamp_tiny(w, 1e-200), min(window, (L + 1) // 2))     # > 0 in float32 too
     return (w[..., None] * Ps).sum(1) / w.sum(1)[:, None]
 
