@@ -135,6 +135,8 @@ def _predict(P: Tensor, missing: Tensor, fill: Tensor, weight_scale: float, mm_w
     scale = weight_scale * D[D > 0].mean() if bool((D > 0).any()) else torch.ones((), dtype=P.dtype)
     lin = ops.interp_linear(torch.where(missing[..., None], 0.0, Y).reshape(T, -1),
                             (~missing).repeat_interleave(d, dim=1)).reshape(T, J, d)
+    zero = torch.zeros((), dtype=P.dtype, device=P.device)
+    Y0 = torch.where(torch.isfinite(Y), Y, zero)                           # the data, NaN as 0
     for g, i in enumerate(gapped.tolist()):
         frames = fill[:, i]
         drop = fill.any(0) & (D[g] > distal_threshold * D[g].mean())       # distal gapped markers
@@ -146,15 +148,14 @@ def _predict(P: Tensor, missing: Tensor, fill: Tensor, weight_scale: float, mm_w
         if int(train.sum()) < 2 or int(others.sum()) < min_markers:
             out[frames, i] = lin[frames, i] + c[frames]                    # too little to go on
             continue
-        Z = torch.where(drop[None, :, None], torch.zeros((), dtype=P.dtype), Y).reshape(T, -1)
-        Z = torch.where(torch.isfinite(Z), Z, torch.zeros((), dtype=P.dtype))
         w = torch.exp(-D[g] ** 2 / (2 * scale ** 2))
         w[i] = mm_weight
         w = torch.where(drop, torch.ones_like(w), w).repeat_interleave(d)
         cols = torch.arange(d * i, d * i + d, device=P.device)
-        Mz = Z[frames].clone()
+        Mz = torch.where(drop[None, :, None], zero, Y0[frames]).reshape(-1, J * d)
         Mz[:, cols] = 0
-        out[frames, i] = reconstruct(Z[train], Mz, cols, w, min_cum_sv) + c[frames]
+        N = torch.where(drop[None, :, None], zero, Y0[train]).reshape(-1, J * d)
+        out[frames, i] = reconstruct(N, Mz, cols, w, min_cum_sv) + c[frames]
     return out
 
 

@@ -66,23 +66,49 @@ def symfilter(X: Tensor, window: int) -> Tensor:
         return X
     T = X.shape[0]
     nan = ~torch.isfinite(X)
-    t = torch.arange(T, device=X.device)[:, None].expand_as(X)
-    prev = torch.cummax(torch.where(nan, t, -1), dim=0).values
-    nxt = T - 1 - torch.cummax(torch.where(nan, T - 1 - t, -1).flip(0), dim=0).values.flip(0)
-    h = (torch.minimum(t - prev, nxt - t) - 1).clamp(max=half)      # no NaN ahead: nxt = T
+    if bool(nan.any()):
+        t = torch.arange(T, device=X.device)[:, None].expand_as(X)
+        prev = torch.cummax(torch.where(nan, t, -1), dim=0).values
+        nxt = T - 1 - torch.cummax(torch.where(nan, T - 1 - t, -1).flip(0), dim=0).values.flip(0)
+        h = (torch.minimum(t - prev, nxt - t) - 1).clamp(max=half)  # no NaN ahead: nxt = T
+    elif T < 5:
+        return X                                                    # no window of 2 or more
+    else:
+        h = None                                                    # shrunk at the ends only
     out = X
     for reduce in ("median", "mean"):
         P = torch.nn.functional.pad(out.T[None], (half, half), value=float("nan"))[0].T
         W = P.unfold(0, 2 * half + 1, 1)                                  # (T, C, window)
         full = window_median(P, half) if reduce == "median" else W.mean(-1)
-        res = torch.where(h == half, full, out)
-        for r in range(2, half):                                          # shrunk windows
-            t_r, c_r = torch.nonzero(h == r, as_tuple=True)
-            if t_r.numel():
-                Wr = W[t_r, c_r, half - r:half + r + 1]
-                res[t_r, c_r] = Wr.median(-1).values if reduce == "median" else Wr.mean(-1)
-        out = res
+        out = _shrunk(full, out, W, h, half, reduce)
     return out
+
+
+def _shrunk(full: Tensor, out: Tensor, W: Tensor, h: Tensor | None, half: int,
+            reduce: str) -> Tensor:
+    """:func:`symfilter`'s filtered values: ``full`` where the whole window fits, windows
+    shrunk to ``2 r + 1`` rows where ``h`` (the reach, T x C; None: the distance to the ends)
+    is ``r`` >= 2, ``out`` kept where it is less."""
+    T = W.shape[0]
+    if h is None:
+        res = full.clone()
+        ends = sorted({*range(min(half, T)), *range(max(T - half, 0), T)})
+        res[ends] = out[ends]
+    else:
+        res = torch.where(h == half, full, out)
+    for r in range(2, half):                                          # shrunk windows
+        if h is None:
+            rows = [t for t in sorted({r, T - 1 - r}) if min(t, T - 1 - t) == r]
+            if rows:
+                Wr = W[rows][:, :, half - r:half + r + 1].reshape(-1, 2 * r + 1).contiguous()
+                v = Wr.median(-1).values if reduce == "median" else Wr.mean(-1)
+                res[rows] = v.reshape(len(rows), -1)
+            continue
+        t_r, c_r = torch.nonzero(h == r, as_tuple=True)
+        if t_r.numel():
+            Wr = W[t_r, c_r, half - r:half + r + 1]
+            res[t_r, c_r] = Wr.median(-1).values if reduce == "median" else Wr.mean(-1)
+    return res
 
 
 def window_median(P: Tensor, half: int) -> Tensor:
@@ -92,7 +118,7 @@ def window_median(P: Tensor, half: int) -> Tensor:
     window holds a NaN come out undefined; :func:`symfilter` uses full windows only). Windows
     of other sizes fall back to ``median``."""
     T = P.shape[0] - 2 * half
-    if half != 4:
+    if half != 4 or P.numel() <= _NETWORK_FROM:
         return P.unfold(0, 2 * half + 1, 1).median(-1).values
     P = P.contiguous()
     p = [P[i:i + T] for i in range(9)]
@@ -112,6 +138,10 @@ def window_median(P: Tensor, half: int) -> Tensor:
     sort2(4, 2)
     p[4] = torch.maximum(p[6], p[4])
     return torch.minimum(p[4], p[2])
+
+
+#: Fewer values: :func:`window_median`'s network costs more than sorting the windows.
+_NETWORK_FROM = 4096
 
 
 def local_frame(A: Tensor, B: Tensor, C: Tensor) -> Tensor:
@@ -162,21 +192,21 @@ class Density:
     def __call__(self, x: Tensor) -> Tensor:
         z = (x[:, None] - self.samples[None]).div_(self.u)
         v = z.pow_(2).mul_(-0.5)
-        rows = self._underflow_rows(x).nonzero().flatten()
-        exact = exp_neg(v[rows])
+        rows = self._underflow_rows(x)
+        exact = exp_neg(v[rows]) if rows.numel() else None
         e = F.threshold_(v.clamp_(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)
-        e[rows] = exact
+        if exact is not None:
+            e[rows] = exact
         return e.mean(1) / (self.u * (2 * torch.pi) ** 0.5)
 
     def _underflow_rows(self, x: Tensor) -> Tensor:
-        """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (the kernel between -700
-        and -749 in the exponent, where :func:`exp_neg`'s care is needed); in every other row
-        the kernel is either over exp(-700) or exactly 0."""
+        """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (the kernel between -749 and
+        -695 in the exponent, where :func:`exp_neg`'s care is needed); in every other row the
+        kernel is either over exp(-700) or exactly 0."""
         near, far = 37.3 * self.u, 38.7 * self.u
-        flag = torch.zeros_like(x, dtype=torch.bool)
-        for lo, hi in ((x - far, x - near), (x + near, x + far)):
-            flag |= torch.searchsorted(self.sorted, hi, right=True) > torch.searchsorted(self.sorted, lo)
-        return flag
+        ends = torch.stack([x - far, x + near, x - near, x + far])
+        i = torch.searchsorted(self.sorted, ends.reshape(-1)).reshape(4, -1)
+        return ((i[2:] > i[:2]).any(0)).nonzero().flatten()
 
 
 def exp_neg(v: Tensor) -> Tensor:
@@ -237,16 +267,18 @@ def space_constraint(P: Tensor, refs: list[Tensor], ranges: list[tuple[Tensor, T
     """Soft skeleton constraint: move each row of ``P`` along the line to each reference (third,
     second, first) into that distance's range, ``rounds`` times (fewer once a round moves
     nothing: the next would not either)."""
+    ranges = [(float(r), float(R)) for r, R in ranges]
     for _ in range(rounds):
-        moved = torch.zeros((), dtype=torch.bool, device=P.device)
+        moved = False
         for Q, (r, R) in zip(reversed(refs), reversed(ranges)):
             v = P - Q
             d = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
             target = d.clamp(min=r, max=R)
             move = (d > 0) & (target != d)
-            P = torch.where(move, Q + v / d.clamp(min=1e-300) * target, P)
-            moved |= move.any()
-        if not bool(moved):
+            if bool(move.any()):
+                P = torch.where(move, Q + v / d.clamp(min=1e-300) * target, P)
+                moved = True
+        if not moved:
             break
     return P
 
