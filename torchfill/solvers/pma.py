@@ -231,8 +231,9 @@ def stride_rows(rows: Tensor, n_max: int) -> Tensor:
     return rows[::max(1, rows.numel() // n_max)]
 
 
-def normalize(X: Tensor, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    mu, sd = X[rows].mean(0), X[rows].std(0)
+def normalize(X: Tensor, rows: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """``X`` standardized by the mean and standard deviation of its ``rows`` (None: all)."""
+    mu, sd = (X.mean(0), X.std(0)) if rows is None else (X[rows].mean(0), X[rows].std(0))
     sd = torch.where(sd > 0, sd, torch.ones_like(sd))
     return (X - mu) / sd, mu, sd
 
@@ -257,7 +258,7 @@ def lstsq(A: Tensor, y: Tensor) -> Tensor:
 def grnn(Xtr: Tensor, Ytr: Tensor, X: Tensor, spread: float) -> Tensor:
     """Generalized regression network (MATLAB newgrnn/sim): kernel-weighted mean of ``Ytr``."""
     b2 = torch.log(torch.tensor(2.0, dtype=X.dtype)) / spread ** 2
-    A = exp_neg(torch.cdist(X, Xtr).pow_(2).mul_(-b2))
+    A = torch.cdist(X, Xtr).pow_(2).mul_(-b2).exp_()
     s = A.sum(1, keepdim=True)
     return torch.where(s > 0, A @ Ytr / s.clamp(min=1e-300), Ytr.mean(0).expand(X.shape[0], -1))
 
@@ -348,11 +349,11 @@ class _Local:
         Xp, _, _ = normalize(poly2(X), rows)
         self.Xl = torch.cat([torch.ones_like(X[:, :1]), Xl], 1)
         self.Xp = torch.cat([torch.ones_like(X[:, :1]), Xp], 1)
-        Yn, self.mu, self.sd = normalize(self.p0p, tr)
+        Yn, self.mu, self.sd = normalize(self.p0p[tr])
         if "lpr" in models:
-            self.beta = lstsq(self.Xp[tr], Yn[tr])
+            self.beta = lstsq(self.Xp[tr], Yn)
         if "lgrnn" in models:
-            self.train = (self.Xl[tr, 1:], Yn[tr])
+            self.train = (self.Xl[tr, 1:], Yn)
 
     def _interpolate(self, a: int, b: int) -> Tensor:
         """LI: marker k's local coordinates interpolated linearly over the gap rows [a, b) (the
@@ -415,8 +416,8 @@ def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
         tr = stride_rows(rows, 500)
         Yr = Y[tr]                                       # the training rows only
         X = torch.cat([torch.ones_like(Yr[:, 0, :1]), Yr[:, refs].reshape(tr.numel(), -1)], 1)
-        Yn, mu, sd = normalize(Y[:, k], tr)
-        cache[key] = (lstsq(X, Yn[tr]), mu, sd)
+        Yn, mu, sd = normalize(Y[tr, k])
+        cache[key] = (lstsq(X, Yn), mu, sd)
     beta, mu, sd = cache[key]
     X = torch.cat([torch.ones_like(Y[lo:hi, 0, :1]), Y[lo:hi][:, refs].reshape(hi - lo, -1)], 1)
     pred = X @ beta * sd + mu
