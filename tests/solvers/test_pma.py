@@ -191,16 +191,18 @@ def test_pma_fills_a_mostly_absent_marker():
 
 
 def test_kept_pieces_give_the_bits_of_a_fresh_fill():
-    """pca_gloersen then pma on one recording (pma reuses the Gløersen fill, the rigidity score
-    and the filtered tracks kept from the first fits) equals pma computed afresh."""
+    """pca_gloersen, li and lgrnn then pma on one recording (pma reuses the Gløersen fill, the
+    rigidity score, the filtered tracks and the local frames kept from the first fits) equals pma
+    computed afresh."""
     from torchfill.solvers import gloersen, pma
     X = rigid_body(T=240, J=8)
     mask = gaps(240, 8)
     given = np.where(mask[..., None], np.nan, X)
     torchfill.fill(given, method="pca_gloersen", constraints=False)
     torchfill.fill(given, method="li", constraints=False)
+    torchfill.fill(given, method="lgrnn", constraints=False)
     warm = torchfill.fill(given, method="pma", constraints=False)
-    for memo in (gloersen._KEPT, pma._KEPT_SCORE, pma._KEPT_TRACK):
+    for memo in (gloersen._KEPT, pma._KEPT_SCORE, pma._KEPT_TRACK, pma._KEPT_FRAME):
         memo.clear()
     fresh = torchfill.fill(given, method="pma", constraints=False)
     assert np.array_equal(warm, fresh)

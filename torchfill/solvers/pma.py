@@ -263,11 +263,10 @@ def grnn(Xtr: Tensor, Ytr: Tensor, X: Tensor, spread: float) -> Tensor:
     return torch.where(s > 0, A @ Ytr / s.clamp(min=1e-300), Ytr.mean(0).expand(X.shape[0], -1))
 
 
-def space_constraint(P: Tensor, refs: list[Tensor], ranges: list[tuple[Tensor, Tensor]],
-                     rounds: int = 5) -> Tensor:
+def space_constraint(P: Tensor, refs: list[Tensor], ranges, rounds: int = 5) -> Tensor:
     """Soft skeleton constraint: move each row of ``P`` along the line to each reference (third,
-    second, first) into that distance's range, ``rounds`` times (fewer once a round moves
-    nothing: the next would not either)."""
+    second, first) into that distance's range (``ranges``: a (min, max) pair per reference),
+    ``rounds`` times (fewer once a round moves nothing: the next would not either)."""
     ranges = [(float(r), float(R)) for r, R in ranges]
     for _ in range(rounds):
         moved = False
@@ -308,10 +307,12 @@ def _rigidity(Y: Tensor, missing: Tensor, max_frames: int) -> Tensor:
     return score.fill_diagonal_(float("inf"))
 
 
-#: The last results of :func:`rigidity` and of the reference tracks' filter (one marker's track
-#: before its gaps are filled is the same in ``li``, ``lgrnn`` and ``pma``).
+#: The last results of :func:`rigidity`, of the reference tracks' filter (one marker's track
+#: before its gaps are filled is the same in ``li``, ``lgrnn`` and ``pma``) and of
+#: :func:`local_geometry`.
 _KEPT_SCORE = Memo(entries=4)
 _KEPT_TRACK = Memo(entries=512)
+_KEPT_FRAME = Memo(entries=64)
 
 
 # -- the models -----------------------------------------------------------------------------------
@@ -320,26 +321,18 @@ class _Local:
 
     def __init__(self, Y: Tensor, k: int, triple: tuple[int, int, int], filtered,
                  smooth: float, models: set[str], T: int | None = None):
-        p0, p1, p2, p3 = (filtered(j) for j in (k, *triple))
+        tracks = [filtered(j) for j in (k, *triple)]
         self.T = Y.shape[0] if T is None else T          # the recording's rows (then training)
         self.raw = [Y[:, j] for j in triple]
-        self.R = local_frame(p1, p2, p3)
-        self.p1 = p1
-        self.p0p = to_local(p0, p1, self.R)
-        self.d = [torch.linalg.vector_norm(q - p0, dim=-1) for q in (p1, p2, p3)]
-        p3p = to_local(p3, p1, self.R)
-        X = torch.stack([torch.linalg.vector_norm(p1 - p2, dim=-1), p3p[:, 0], p3p[:, 2]], 1)
-        rows = torch.nonzero(torch.isfinite(self.p0p).all(1) & torch.isfinite(X).all(1)).flatten()
+        self.p1 = tracks[1]
+        self.R, self.p0p, X, rows, self.ranges, self.samples = _KEPT_FRAME(
+            lambda: local_geometry(*tracks), *tracks)
         self.ok = rows.numel() >= 3
         if not self.ok:
             return
         if models & {"lpr", "lgrnn"}:                    # the regressions (``li`` has none)
             self._train(X, rows, models)
         self.smooth = smooth
-        dist = [d[torch.isfinite(d)] for d in self.d]
-        q = torch.tensor([0.01, 0.99], dtype=Y.dtype, device=Y.device)
-        self.ranges = [tuple(torch.quantile(d, q)) for d in dist]
-        self.samples = [stride_rows(d, 200) for d in dist]          # the paper: 200 suffice
         self._densities: list[Density] | None = None
 
     def _train(self, X: Tensor, rows: Tensor, models: set[str]) -> None:
@@ -395,6 +388,26 @@ class _Local:
             edges_pred = (pred[0] if a > 0 else None, pred[-1] if b < T else None)
             L = ramp(inner, *border_offsets(edges_pred, self._edges(a, b)))
         return to_global(L, self.p1[a:b], self.R[a:b])
+
+
+def local_geometry(p0: Tensor, p1: Tensor, p2: Tensor, p3: Tensor):
+    """The local frame ``R`` of the references ``p1, p2, p3`` (T, 3 each), the marker ``p0`` in
+    it, the frame-shape features ``X`` (d12 and p3's in-plane coordinates), the rows where both
+    are finite, and from the observed frames the ranges (1 %, 99 %) and density samples of the
+    marker's distance to each reference. ``li``, ``lgrnn`` and ``pma`` of one round ask for the
+    same ones: the last results are kept."""
+    R = local_frame(p1, p2, p3)
+    p0p = to_local(p0, p1, R)
+    p3p = to_local(p3, p1, R)
+    X = torch.stack([torch.linalg.vector_norm(p1 - p2, dim=-1), p3p[:, 0], p3p[:, 2]], 1)
+    rows = torch.nonzero(torch.isfinite(p0p).all(1) & torch.isfinite(X).all(1)).flatten()
+    if rows.numel() < 3:
+        return R, p0p, X, rows, None, None
+    dist = [torch.linalg.vector_norm(q - p0, dim=-1) for q in (p1, p2, p3)]
+    dist = [d[torch.isfinite(d)] for d in dist]
+    q = torch.tensor([0.01, 0.99], dtype=p0.dtype, device=p0.device)
+    ranges = torch.stack([torch.quantile(d, q) for d in dist])
+    return R, p0p, X, rows, ranges, [stride_rows(d, 200) for d in dist]   # the paper: 200 suffice
 
 
 def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
