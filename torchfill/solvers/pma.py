@@ -43,6 +43,7 @@ skeleton constraints and model averaging. PLoS ONE 13(7): e0199744.
 """
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
 import torch
@@ -168,9 +169,13 @@ def ramp(pred: Tensor, D1: Tensor | None, D2: Tensor | None) -> Tensor:
         return pred
     D1 = D2 if D1 is None else D1
     D2 = D1 if D2 is None else D2
-    L = pred.shape[0]
-    s = torch.arange(1, L + 1, dtype=pred.dtype, device=pred.device)[:, None] / (L + 1)
-    return pred - (D1 + (D2 - D1) * s)
+    return pred - (D1 + (D2 - D1) * steps(pred.shape[0], pred.dtype, pred.device))
+
+
+@functools.lru_cache(maxsize=256)
+def steps(L: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """The ``L`` inner steps of a linear ramp, ``(1 .. L) / (L + 1)`` as a column (read only)."""
+    return torch.arange(1, L + 1, dtype=dtype, device=device)[:, None] / (L + 1)
 
 
 def border_offsets(pred_edge: tuple[Tensor | None, Tensor | None],
@@ -187,7 +192,10 @@ class Density:
         if not bool(sig > 0):
             sig = samples.max() - samples.min()
         self.u = sig * (4.0 / (3.0 * samples.numel())) ** 0.2 if bool(sig > 0) else torch.ones_like(sig)
-        self.samples, self.sorted = samples.contiguous(), samples.sort().values
+        self.samples, self.norm = samples.contiguous(), self.u * (2 * torch.pi) ** 0.5
+        near, far = 37.3 * self.u, 38.7 * self.u       # x with a sample this far: x in [start, end]
+        self.starts = torch.cat([samples - far, samples + near]).sort().values
+        self.ends = torch.cat([samples - near, samples + far]).sort().values
 
     def __call__(self, x: Tensor) -> Tensor:
         z = (x[:, None] - self.samples[None]).div_(self.u)
@@ -197,16 +205,14 @@ class Density:
         e = F.threshold_(v.clamp_(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)
         if exact is not None:
             e[rows] = exact
-        return e.mean(1) / (self.u * (2 * torch.pi) ** 0.5)
+        return e.mean(1) / self.norm
 
     def _underflow_rows(self, x: Tensor) -> Tensor:
         """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (the kernel between -749 and
         -695 in the exponent, where :func:`exp_neg`'s care is needed); in every other row the
         kernel is either over exp(-700) or exactly 0."""
-        near, far = 37.3 * self.u, 38.7 * self.u
-        ends = torch.stack([x - far, x + near, x - near, x + far])
-        i = torch.searchsorted(self.sorted, ends.reshape(-1)).reshape(4, -1)
-        return ((i[2:] > i[:2]).any(0)).nonzero().flatten()
+        inside = torch.searchsorted(self.starts, x, right=True) - torch.searchsorted(self.ends, x)
+        return (inside > 0).nonzero().flatten()
 
 
 def exp_neg(v: Tensor) -> Tensor:
@@ -333,6 +339,7 @@ class _Local:
         if models & {"lpr", "lgrnn"}:                    # the regressions (``li`` has none)
             self._train(X, rows, models)
         self.smooth = smooth
+        self.ranges = self.ranges.tolist()
         self._densities: list[Density] | None = None
 
     def _train(self, X: Tensor, rows: Tensor, models: set[str]) -> None:
@@ -359,8 +366,7 @@ class _Local:
                                      torch.isfinite(self.p0p[lo:hi]))[a - lo:a - lo + L]
         if edges.shape[0] == 1:
             return edges.expand(L, -1)
-        s = torch.arange(1, L + 1, dtype=edges.dtype, device=edges.device)[:, None] / (L + 1)
-        return edges[0] + s * (edges[1] - edges[0])
+        return edges[0] + steps(L, edges.dtype, edges.device) * (edges[1] - edges[0])
 
     def densities(self) -> list[Density]:
         """The reference distances' densities (from the observed frames), made once."""
@@ -411,13 +417,14 @@ def local_geometry(p0: Tensor, p1: Tensor, p2: Tensor, p3: Tensor):
 
 
 def glr_fill(Y: Tensor, missing: Tensor, k: int, a: int, b: int, cache: dict,
-             T: int | None = None) -> Tensor | None:
+             T: int | None = None, seen: Tensor | None = None) -> Tensor | None:
     """Global linear regression of marker ``k`` on every marker observed over [a-1, b] (Tits et
     al. model 4), with the time constraint; None with fewer than 4 such markers. ``T``: the
-    recording's rows when training rows follow them (they train the regression only)."""
+    recording's rows when training rows follow them (they train the regression only); ``seen``:
+    the markers observed over [a-1, b] when known."""
     T = Y.shape[0] if T is None else T
     lo, hi = max(a - 1, 0), min(b + 1, T)
-    refs = ~missing[lo:hi].any(0)
+    refs = ~missing[lo:hi].any(0) if seen is None else seen.clone()
     refs[k] = False
     if int(refs.sum()) < 4:
         return None
@@ -455,9 +462,10 @@ def average(preds: list[Tensor], local: _Local, a: int, b: int, window: int) -> 
         return preds[0]
     L, m = b - a, len(preds)
     Ps = symfilter(torch.stack(preds, 1).reshape(L, 3 * m), window).reshape(L, m, 3)
-    w = torch.ones(L, m, dtype=Ps.dtype, device=Ps.device)
+    w = None                                             # the product of the densities
     for Q, density in zip(local.raw, local.densities()):
-        w = w * density(torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
+        f = density(torch.linalg.vector_norm(Ps - Q[a:b, None], dim=-1).reshape(-1)).reshape(L, m)
+        w = f if w is None else w * f
     w = symfilter(ops.clamp_tiny(w, 1e-200), min(window, (L + 1) // 2))     # > 0 in float32 too
     return (w[..., None] * Ps).sum(1) / w.sum(1)[:, None]
 
@@ -500,13 +508,15 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
     for k in gapped:
         if local_models:
             order = torch.argsort(score[k]).tolist()
+            scored = torch.isfinite(score[k])
             filtered(k)                                  # as it was before its gaps are filled
         glr_cache, local_cache = {}, {}
         for _, a, b in ops.runs(todo[:T0, k:k + 1]):
             lo, hi = max(a - 1, 0), min(b + 1, T0)
             preds, local, valid = [], None, []
+            seen = ~miss[lo:hi].any(0)
             if local_models:
-                present = (~miss[lo:hi].any(0) & torch.isfinite(score[k])).tolist()
+                present = (seen & scored).tolist()
                 valid = [r for r in order if r != k and present[r]]
             if len(valid) >= 3:
                 triple = tuple(valid[:3])
@@ -519,7 +529,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
                     local = None
             glob = []
             if "glr" in models:
-                g = glr_fill(Y, miss, k, a, b, glr_cache, T0)
+                g = glr_fill(Y, miss, k, a, b, glr_cache, T0, seen)
                 if g is not None:
                     glob.append(g)
             if W is not None:
