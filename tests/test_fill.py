@@ -358,6 +358,27 @@ def test_dtype_must_be_a_floating_dtype():
             torchfill.fill(walk(), "linear", dtype=bad)
 
 
+def test_reject_reads_the_estimate_the_fill_returns(recording):
+    """``reject=`` judges each gap by the error estimate ``fill()`` returns (the one raised on a
+    short gap that departs from the interpolation, and bounded by what the fill can be off), so
+    no interior gap it keeps has an RMS estimate above the limit (tennis: a 4-frame shoulder gap
+    the estimate raises above 30 mm)."""
+    seq = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
+    limit = 30.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, std = torchfill.fill(seq, return_std=True)
+        cut = torchfill.fill(seq, reject=limit)
+    T = seq.n_frames
+    interior = [(j, a, b) for j, a, b in metrics.gap_runs(seq.mask) if a > 0 and b < T]
+    std_mm = np.nan_to_num(std) / seq.per_mm()               # the file is in metres
+    over = [(j, a, b) for j, a, b in interior
+            if np.sqrt(3.0 * np.mean(std_mm[a:b, j] ** 2)) > 1.05 * limit]
+    assert over                                          # the case this test is about
+    for j, a, b in over:
+        assert np.isnan(cut.points[a:b, j]).all(), (seq.labels[j], a, b)
+
+
 def test_reject_leaves_samples_with_a_large_estimated_error_unfilled(recording):
     """``reject=`` (mm) leaves NaN the filled samples whose error estimate is above it, with one
     warning; the default keeps every fill (its estimate goes to the QC instead)."""

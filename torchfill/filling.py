@@ -317,6 +317,9 @@ def _finish(case: _Case, o: FillOptions):
         out, info["constraints"] = _constrain(out, case.own, case.unfit, data, extrapolate,
                                               case.seg_idx, case.solver.spatial,
                                               case.anchored)
+        if case.solver.finish_short_gaps:       # first: what is left NaN reads the final std
+            out, std = unfilled.short_gaps_and_bound(out, std, case.missing, case.own, data,
+                                                     info)
         if extrapolate is not None:
             tested = std if case.placed is None else std.masked_fill(case.placed, float("nan"))
             info["untested"] = unfilled.leave_untested(out, tested, case.missing, data)
@@ -325,9 +328,6 @@ def _finish(case: _Case, o: FillOptions):
                                                       case.seg_idx)
         if o.reject is not None and isinstance(data, MarkerSequence):
             info["rejected"] = unfilled.reject(out, std, case.missing, data.units, o.reject)
-        if case.solver.finish_short_gaps:
-            out, std = unfilled.short_gaps_and_bound(out, std, case.missing, case.own, data,
-                                                     info)
     if bool(todo.any()):
         case.shown.close(f"{case.method} filled {int(todo.sum())} samples ({info['windows']} "
                          f"window(s), {info['n_iter']} iterations)")
