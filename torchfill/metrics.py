@@ -104,7 +104,11 @@ def observed_steps(points, observed) -> np.ndarray:
     X = np.asarray(points, dtype=np.float64)
     observed = np.asarray(observed, dtype=bool)
     both = observed[1:] & observed[:-1]
-    return norm_last(X[1:] - X[:-1])[both]
+    s = None                    # norm_last(X[1:] - X[:-1]), one coordinate's (T-1, J) at a time
+    for c in range(X.shape[-1]):
+        d = X[1:, ..., c] - X[:-1, ..., c]
+        s = d * d if s is None else s + d * d
+    return np.sqrt(s)[both]
 
 
 def step_limit(points, observed, *, q: float = 99.9, factor: float = 1.5) -> float:
@@ -136,8 +140,11 @@ def marker_jumps(filled, missing, observed, *, q: float = 99.9, factor: float = 
 
 def volume(points, observed, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis bounds of the observed samples, widened by ``margin`` times their range."""
-    P = np.asarray(points, dtype=np.float64)[np.asarray(observed, dtype=bool)]
-    lo, hi = P.min(axis=0), P.max(axis=0)
+    P, observed = np.asarray(points, dtype=np.float64), np.asarray(observed, dtype=bool)
+    lo, hi = np.empty(P.shape[-1]), np.empty(P.shape[-1])
+    for c in range(P.shape[-1]):                             # one axis's copy at a time
+        axis = P[..., c][observed]
+        lo[c], hi[c] = axis.min(), axis.max()
     return lo - margin * (hi - lo), hi + margin * (hi - lo)
 
 
