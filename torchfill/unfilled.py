@@ -124,9 +124,12 @@ def short_gaps_and_bound(out: torch.Tensor, std: torch.Tensor, missing: torch.Te
     (:mod:`torchfill.qc.finish`); observed coordinates (``own``) stay bit for bit."""
     X = torch.where(missing[..., None], float("nan"), out).cpu().numpy()
     seq = isinstance(data, MarkerSequence)
-    F, S, changed = finish(X, out.cpu().numpy(), std.cpu().numpy(), data.rate if seq else None,
-                           qc_per_mm(data.units if seq else "mm", X.shape[2]))
+    F = out.cpu().numpy()                   # out itself on the CPU (float64 where fill() runs)
+    in_place = F.dtype == np.float64 and out.device.type == "cpu"
+    F, S, changed = finish(X, F, std.cpu().numpy(), data.rate if seq else None,
+                           qc_per_mm(data.units if seq else "mm", X.shape[2]),
+                           keep=own.cpu().numpy() if in_place else None)
     info["short_gaps"] = len(changed)
-    if changed:
+    if changed and not in_place:
         out = torch.where(own, out, torch.as_tensor(F, dtype=out.dtype, device=out.device))
     return out, torch.as_tensor(S, dtype=std.dtype, device=std.device)

@@ -61,16 +61,19 @@ def std_bound(points, filled, dims: int | None = None) -> np.ndarray:
 
 
 def short_gap_fallback(points, filled, rate: float | None, per_mm: float = 1.0,
-                       side: int = 4) -> tuple[np.ndarray, list[tuple[int, int, int]], np.ndarray]:
+                       side: int = 4, keep=None
+                       ) -> tuple[np.ndarray, list[tuple[int, int, int]], np.ndarray]:
     """``(filled, gaps, departure)``: a copy of ``filled`` where each interior gap of up to
     ``SHORT_FRAMES`` frames and ``SHORT_SECONDS`` (``rate`` in Hz; None: frames only) whose fill
     departs (RMS, 3-D) from the PCHIP interpolation through up to ``side`` observed samples on
     each side by more than ``AGREE_MM`` (``per_mm``: file units per mm) holds that interpolation
     instead; those gaps ``(j, start, stop)``; and ``(T, J)`` each such gap's per-frame distance
     between the given fill and the interpolation, for every short gap compared (kept or
-    replaced), NaN elsewhere. Gaps not wholly filled are left as they are."""
+    replaced), NaN elsewhere. Gaps not wholly filled are left as they are. ``keep`` (T, J, D
+    bool): ``filled`` itself is changed, except where ``keep`` (no copy: a long recording's
+    fill is hundreds of MB)."""
     X = np.asarray(points, dtype=np.float64)
-    F = np.array(filled, dtype=np.float64, copy=True)
+    F = np.array(filled, dtype=np.float64, copy=keep is None)
     T = X.shape[0]
     observed = np.isfinite(X).all(axis=2)
     departure = np.full(observed.shape, np.nan)
@@ -89,12 +92,12 @@ def short_gap_fallback(points, filled, rate: float | None, per_mm: float = 1.0,
         for k, (j, a, b, _) in enumerate(gaps):
             departure[a:b, j] = np.linalg.norm(F[a:b, j] - P[:, k], axis=1)
             if math.sqrt(np.mean(departure[a:b, j] ** 2)) > AGREE_MM * per_mm:
-                F[a:b, j] = P[:, k]
+                F[a:b, j] = P[:, k] if keep is None else np.where(keep[a:b, j], F[a:b, j], P[:, k])
                 changed.append((int(j), int(a), int(b)))
     return F, sorted(changed), departure
 
 
-def finish(points, filled, std, rate: float | None, per_mm: float = 1.0
+def finish(points, filled, std, rate: float | None, per_mm: float = 1.0, keep=None
            ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
     """``(filled, std, gaps)``: the fill with its short gaps finished (:func:`short_gap_fallback`,
     ``gaps`` those replaced) and its per-coordinate ``std`` (T, J) raised, on every short gap
@@ -102,7 +105,7 @@ def finish(points, filled, std, rate: float | None, per_mm: float = 1.0
     two is off by about that much, and the finished fill holds the interpolation only where they
     disagree -- then cut to :func:`std_bound`. NaN std stays NaN."""
     X = np.asarray(points, dtype=np.float64)
-    F, changed, departure = short_gap_fallback(X, filled, rate, per_mm)
+    F, changed, departure = short_gap_fallback(X, filled, rate, per_mm, keep=keep)
     S = np.asarray(std, dtype=np.float64)
     raise_ = np.isfinite(departure) & np.isfinite(S)
     S = np.where(raise_, np.fmax(S, departure / math.sqrt(X.shape[2])), S)
