@@ -182,7 +182,8 @@ class Auto(OneShotSolver):
 
     def _fill(self, seen: Tensor) -> list[str]:
         """The choice (or an earlier window's) and the combined fill; the candidates' names."""
-        if self.choice is not None and set(self.candidate_names()) == set(self.choice["tried"]):
+        self.tried_ = self.candidate_names()        # once: the default's read the gap pattern
+        if self.choice is not None and set(self.tried_) == set(self.choice["tried"]):
             V = torch.zeros_like(seen)
             names, fills, donor, W, mse = self._chosen(~seen)
         else:
@@ -207,7 +208,7 @@ class Auto(OneShotSolver):
         error (C,) and ``V``."""
         V = draws.holdout(seen, self.generator_)
         fit_missing = ~seen | V
-        names, fills = self._run(self.candidate_names(), fit_missing)
+        names, fills = self._run(self.tried_, fit_missing)
         fills, donor = self._fits.constrain(fills, fit_missing)    # donor: rigid-donor samples
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         kinds = sample_kinds([n in PARTIAL for n in names], fills, fit_missing, Xt)[-1]
@@ -276,7 +277,7 @@ class Auto(OneShotSolver):
             ((mean - Xt) ** 2).mean(dim=2), self.error_model_, self.sigma_)
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)
-        self.choice_ = {"tried": self.candidate_names(), "names": list(names),
+        self.choice_ = {"tried": self.tried_, "names": list(names),
                         "weights": W.tolist(), "mse": mse.tolist(),
                         "error_model": self.error_model_, "carried": dict(self.carried_),
                         "scores": dict(self.scores_)}
