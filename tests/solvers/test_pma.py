@@ -124,6 +124,34 @@ def test_symfilter_keeps_nan_and_constant():
     assert torch.allclose(symfilter(ramp, 9), ramp)                        # symmetric: no delay
 
 
+@pytest.mark.parametrize("T", [3, 6, 8, 200])
+def test_symfilter_of_complete_columns_is_the_gapped_columns_filter_bit_for_bit(T):
+    """Complete columns take a shorter route (windows shrunk at the ends only): the same bits as
+    beside a gapped column, which takes the general one."""
+    g = torch.Generator().manual_seed(1)
+    X = torch.randn(T, 4, generator=g, dtype=torch.float64).cumsum(0)
+    gapped = torch.cat([X, X[:, :1].clone()], 1)
+    gapped[T // 2, -1] = float("nan")
+    assert torch.equal(symfilter(X, 9), symfilter(gapped, 9)[:, :4])
+
+
+def test_density_is_the_gaussian_kernel_mean_bit_for_bit():
+    """The density skips libm's slow underflow path where the kernel is exactly 0 and computes it
+    where it is not (37 to 39 bandwidths away): the bits of the plain formula."""
+    from torchfill.solvers.pma import Density
+    g = torch.Generator().manual_seed(2)
+    s = 100 + 10 * torch.randn(300, generator=g, dtype=torch.float64)
+    density = Density(s)
+    u = density.u
+    x = torch.cat([100 + 30 * torch.randn(500, generator=g, dtype=torch.float64),
+                   s[:50] + u * torch.linspace(36, 40, 50, dtype=torch.float64),   # the band
+                   s[:50] - u * torch.linspace(36, 40, 50, dtype=torch.float64),
+                   torch.tensor([1e4], dtype=torch.float64)])                      # far: 0
+    plain = torch.exp(-0.5 * ((x[:, None] - s[None]) / u) ** 2).mean(1) / (u * (2 * torch.pi) ** 0.5)
+    assert bool((plain[500:] > 0).any()) and bool((plain == 0).any())
+    assert torch.equal(density(x), plain)
+
+
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_window_median_is_the_windows_median_bit_for_bit(dtype):
     g = torch.Generator().manual_seed(0)
