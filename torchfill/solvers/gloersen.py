@@ -95,7 +95,7 @@ def reconstruct(N: Tensor, Mz: Tensor, cols: Tensor, w: Tensor, min_cum_sv: floa
     k = max(_n_eig(sn, min_cum_sv), _n_eig(s0, min_cum_sv))
     Vn, V0 = Vn[:, :k], V0[:, :k]
     R = Mn @ V0 @ (Vn.T @ V0) @ Vn.T                     # Federolf 2013, Eq. 1
-    return (mean_N + R * std / w)[:, cols]
+    return mean_N[cols] + R[:, cols] * std[cols] / w[cols]
 
 
 def predict_missing_markers(P: Tensor, missing: Tensor, *, weight_scale: float, mm_weight: float,
@@ -137,9 +137,10 @@ def _predict(P: Tensor, missing: Tensor, fill: Tensor, weight_scale: float, mm_w
                             (~missing).repeat_interleave(d, dim=1)).reshape(T, J, d)
     zero = torch.zeros((), dtype=P.dtype, device=P.device)
     Y0 = torch.where(torch.isfinite(Y), Y, zero)                           # the data, NaN as 0
+    has_gap = fill.any(0)
     for g, i in enumerate(gapped.tolist()):
         frames = fill[:, i]
-        drop = fill.any(0) & (D[g] > distal_threshold * D[g].mean())       # distal gapped markers
+        drop = has_gap & (D[g] > distal_threshold * D[g].mean())           # distal gapped markers
         drop |= missing[frames].any(0)                                     # overlapping gaps
         drop[i] = False
         others = ~drop
