@@ -198,34 +198,26 @@ class Density:
         self.ends = torch.cat([samples - near, samples + far]).sort().values
 
     def __call__(self, x: Tensor) -> Tensor:
+        """The density at ``x``, the bits of ``exp(-z^2 / 2).mean(1) / (u sqrt(2 pi))``. libm's
+        exponential is slow (tens of times) where its result falls under the normal range:
+        exponents under -700 are exponentiated only where the result is not 0."""
         z = (x[:, None] - self.samples[None]).div_(self.u)
         v = z.pow_(2).mul_(-0.5)
         rows = self._underflow_rows(x)
-        exact = exp_neg(v[rows]) if rows.numel() else None
-        e = F.threshold_(v.clamp_(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)
-        if exact is not None:
-            e[rows] = exact
+        if rows.numel():
+            v_r = v[rows]
+            t, j = ((v_r > -746.0) & (v_r <= _EXP_LOW + 1)).nonzero(as_tuple=True)
+            exact = torch.exp(v_r[t, j])
+        e = F.threshold_(v.clamp_(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)   # 0 from -700 down
+        if rows.numel():
+            e[rows[t], j] = exact
         return e.mean(1) / self.norm
 
     def _underflow_rows(self, x: Tensor) -> Tensor:
-        """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (the kernel between -749 and
-        -695 in the exponent, where :func:`exp_neg`'s care is needed); in every other row the
-        kernel is either over exp(-700) or exactly 0."""
+        """Rows of ``x`` with a sample at 37.3 to 38.7 bandwidths (an exponent between -749 and
+        -695); in every other row the kernel is either over exp(-700) or exactly 0."""
         inside = torch.searchsorted(self.starts, x, right=True) - torch.searchsorted(self.ends, x)
         return (inside > 0).nonzero().flatten()
-
-
-def exp_neg(v: Tensor) -> Tensor:
-    """``torch.exp(v)`` bit for bit for ``v`` <= 0. libm's exponential is slow (tens of times)
-    where its result falls under the normal range; those arguments (< -700) are exponentiated
-    only where the result is not 0."""
-    e = F.threshold_(v.clamp(min=_EXP_LOW).exp_(), _EXP_LOW_VALUE, 0.0)   # 0 from _EXP_LOW down
-    band = v > -746.0
-    band &= e == 0
-    band = band.nonzero(as_tuple=True)
-    if band[0].numel():
-        e[band] = torch.exp(v[band])
-    return e
 
 
 _EXP_LOW = -700.0
