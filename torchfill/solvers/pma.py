@@ -203,8 +203,10 @@ class Density:
         exponents under -700 are exponentiated only where the result is not 0."""
         z = (x[:, None] - self.samples[None]).div_(self.u)
         v = z.pow_(2).mul_(-0.5)
+        if not bool(torch.isfinite(x).all()):                  # NaN stays NaN
+            return v.exp_().mean(1) / self.norm
         rows = self._underflow_rows(x)
-        if rows.numel():
+        if rows.numel():                    # exponents whose exp is not 0 (-699: or exp(-700))
             v_r = v[rows]
             t, j = ((v_r > -746.0) & (v_r <= _EXP_LOW + 1)).nonzero(as_tuple=True)
             exact = torch.exp(v_r[t, j])
@@ -323,7 +325,7 @@ class _Local:
         self.T = Y.shape[0] if T is None else T          # the recording's rows (then training)
         self.raw = [Y[:, j] for j in triple]
         self.p1 = tracks[1]
-        self.R, self.p0p, X, rows, self.ranges, self.samples = _KEPT_FRAME(
+        self.R, self.p0p, X, rows, ranges, self.samples = _KEPT_FRAME(
             lambda: local_geometry(*tracks), *tracks)
         self.ok = rows.numel() >= 3
         if not self.ok:
@@ -331,7 +333,7 @@ class _Local:
         if models & {"lpr", "lgrnn"}:                    # the regressions (``li`` has none)
             self._train(X, rows, models)
         self.smooth = smooth
-        self.ranges = self.ranges.tolist()
+        self.ranges = ranges.tolist()
         self._densities: list[Density] | None = None
 
     def _train(self, X: Tensor, rows: Tensor, models: set[str]) -> None:
@@ -352,7 +354,7 @@ class _Local:
         observed border held at an end of the recording), as :func:`ops.interp_linear`."""
         T, L = self.T, b - a
         edges = self.p0p[[i for i in (a - 1, b) if 0 <= i < T]]
-        if not 0 < edges.shape[0] or not bool(torch.isfinite(edges).all()):
+        if edges.shape[0] == 0 or not bool(torch.isfinite(edges).all()):
             lo, hi = max(a - 1, 0), min(b + 1, T)
             return ops.interp_linear(torch.nan_to_num(self.p0p[lo:hi]),
                                      torch.isfinite(self.p0p[lo:hi]))[a - lo:a - lo + L]
