@@ -356,17 +356,13 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
     samples those entries touch only (gathered once, written back at the end); the moves are
     summed over the free samples among those only (the others never move).
     ``cone``: each pair's observed mean direction and angular range (see :func:`_unseen_turn`)."""
-    T, J, D = F.shape
-    t, p = np.nonzero(free[:, j] | free[:, k])
-    a, b, d0, band = j[p], k[p], d0[p], band[p]
-    ia, ib, rows, cols = _gathered(t * J + a, t * J + b, T, J, free)
+    D = F.shape[2]
+    p, ia, ib, rows, cols, fa, fb, share_a, share_b, size = _entries(free, j, k)
+    d0, band = d0[p], band[p]
     P = F[rows, cols]
     if cone is not None:
         band = band + d0 * (1 - cone[2][p]) * _unseen_turn(P.take(ia, 0) - P.take(ib, 0),
                                                             cone[0][p], cone[1][p])
-    fa, fb = free[t, a], free[t, b]
-    share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
-    size = int(free[rows, cols].sum())          # the free samples: the first ``size`` of P
     Q = np.ascontiguousarray(P.T)               # (D, samples): a coordinate a row
     moved = False
     for _ in range(SOFT_ITER):
@@ -391,6 +387,26 @@ def _project_distances(F, free, j, k, d0, band, cone=None) -> None:
         F += 0.0
         Q += 0.0
         F[rows, cols] = Q.T
+
+
+def _entries(free: np.ndarray, j: np.ndarray, k: np.ndarray) -> tuple:
+    """The (frame, pair) entries of :func:`_project_distances` for the ``free`` samples (T, J)
+    of pairs ``j``, ``k``: each entry's pair ``p``, its samples' places ``ia``, ``ib`` among
+    the samples touched (``rows``, ``cols``; the ``size`` free ones first), whether each is free
+    (``fa``, ``fb``) and its share of a step. Kept for the same mask: ``auto``'s candidates
+    share it."""
+    def compute():
+        T, J = free.shape
+        t, p = np.nonzero(free[:, j] | free[:, k])
+        a, b = j[p], k[p]
+        ia, ib, rows, cols = _gathered(t * J + a, t * J + b, T, J, free)
+        fa, fb = free[t, a], free[t, b]
+        share_a, share_b = np.where(fb, 0.5, 1.0) * fa, np.where(fa, 0.5, 1.0) * fb
+        return p, ia, ib, rows, cols, fa, fb, share_a, share_b, int(free[rows, cols].sum())
+    return _KEPT_ENTRIES(compute, free, j, k)
+
+
+_KEPT_ENTRIES = Memo(entries=4)
 
 
 def _mean_moves(step: np.ndarray, sides: list, size: int) -> np.ndarray:
