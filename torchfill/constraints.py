@@ -299,8 +299,9 @@ def _blend_edges(F, free, held=None) -> None:
             fade = np.clip(1.0 - np.arange(L) / min(L, END_FADE), 0.0, 1.0)[:, None]
             F[a:b, j] += fade * d0 if d1 is None else fade[::-1] * d1
             continue
-        s = np.linspace(0.0, 1.0, L)[:, None] if L > 1 else np.full((1, 1), 0.5)
-        F[a:b, j] += (1 - s) * d0 + s * d1
+        s = np.full(1, 0.5) if L == 1 else np.arange(L) * (1.0 / (L - 1))   # np.linspace(0,
+        s[-1] = 1.0 if L > 1 else 0.5                       # 1, L)'s bits, without its cost
+        F[a:b, j] += (1 - s[:, None]) * d0 + s[:, None] * d1
 
 
 def meet_kept(F: np.ndarray, fill: np.ndarray, kept: np.ndarray) -> None:
@@ -486,22 +487,18 @@ def _limit_steps(F, missing, limit: float, report, end_limit: float | None = Non
     end_limit = limit if end_limit is None else end_limit
     T = F.shape[0]
     fin = _finite(F)
+    gaps, paths = [], []
     for j, a, b in _steep(F, *_gaps(missing & fin), fin, limit, end_limit):
-        left = F[a - 1, j] if a > 0 and fin[a - 1, j] else None
-        right = F[b, j] if b < T and fin[b, j] else None
-        parts = [F[a:b, j]]
-        if left is not None:
-            parts.insert(0, left[None])
-        if right is not None:
-            parts.append(right[None])
-        path = np.concatenate(parts)
-        steps = np.diff(path, axis=0)
-        both = left is not None and right is not None
-        cap = limit if both else end_limit
-        steps = _shorten(steps, 0.999 * cap, both=both)
-        start = path[-1] - steps.sum(axis=0) if left is None and right is not None else path[0]
+        left, right = a > 0 and fin[a - 1, j], b < T and fin[b, j]
+        gaps.append((j, a, b, bool(left), bool(right)))
+        paths.append(F[a - left:b + right, j])
+    both = [g[3] and g[4] for g in gaps]
+    caps = 0.999 * np.array([limit if x else end_limit for x in both])
+    for (j, a, b, left, right), path, steps in zip(
+            gaps, paths, _shorten([np.diff(p, axis=0) for p in paths], caps, both)):
+        start = path[-1] - steps.sum(axis=0) if not left and right else path[0]
         new = start + np.concatenate([np.zeros((1, F.shape[2])), np.cumsum(steps, axis=0)])
-        F[a:b, j] = new[int(left is not None):len(new) - int(right is not None)]
+        F[a:b, j] = new[int(left):len(new) - int(right)]
         report.shortened_gaps += 1
 
 
@@ -527,16 +524,48 @@ def _steep(F, j, a, b, fin, limit: float, end_limit: float):
     return zip(j[steep].tolist(), a[steep].tolist(), b[steep].tolist())
 
 
-def _shorten(steps: np.ndarray, limit: float, both: bool, n_iter: int = 50) -> np.ndarray:
-    total = steps.sum(axis=0)
+def _shorten(steps: list, limit: np.ndarray, both: list, n_iter: int = 50) -> list:
+    """Each gap's ``steps`` (L, D) shortened to at most its ``limit`` (rounds of scaling the
+    long steps down, then, where ``both`` edges hold it, spreading the lost way over all its
+    steps; their mean where ``n_iter`` rounds do not meet the limit), the gaps' rounds taken
+    together (each gap's own arithmetic, its sums over its steps in order)."""
+    if not steps:
+        return []
+    size = np.array([len(x) for x in steps])
+    S = np.concatenate(steps)
+    total = _gap_sums(S, size)
+    both = np.array(both, dtype=bool)
+    out = [None] * len(steps)
+    live = np.arange(len(steps))                      # the gaps still shortening
+    n = norm_last(S)[:, None]                         # each step's length, once a round
     for _ in range(n_iter):
-        n = np.linalg.norm(steps, axis=1, keepdims=True)
-        steps = steps * np.minimum(1.0, limit / np.where(n > 0, n, 1))
-        if both:
-            steps = steps + (total - steps.sum(axis=0)) / len(steps)
-        if np.linalg.norm(steps, axis=1).max() <= limit * (1 + 1e-9):
-            return steps
-    return np.repeat(total[None] / len(steps), len(steps), axis=0) if both else steps
+        L, cap = size[live], limit[live]
+        S = S * np.minimum(1.0, np.repeat(cap, L)[:, None] / np.where(n > 0, n, 1))
+        spread = np.repeat(both[live], L)
+        if spread.any():
+            lost = (total[live] - _gap_sums(S, L)) / L[:, None]
+            S[spread] = S[spread] + np.repeat(lost, L, axis=0)[spread]
+        n = norm_last(S)[:, None]
+        first = np.cumsum(L) - L
+        done = np.maximum.reduceat(n[:, 0], first) <= cap * (1 + 1e-9)
+        for i in np.flatnonzero(done):
+            out[live[i]] = S[first[i]:first[i] + L[i]]
+        keep = np.repeat(~done, L)
+        S, n, live = S[keep], n[keep], live[~done]
+        if live.size == 0:
+            return out
+    for g, row in zip(live, np.cumsum(size[live]) - size[live]):
+        L = size[g]
+        out[g] = np.repeat(total[g][None] / L, L, axis=0) if both[g] else S[row:row + L]
+    return out
+
+
+def _gap_sums(S: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """Each gap's ``S.sum(axis=0)`` (its ``size`` rows of S in turn, (gaps, D)): the same
+    bits, a sum from 0.0 in the rows' order per column."""
+    gap = np.repeat(np.arange(size.size), size)
+    return np.stack([np.bincount(gap, weights=S[:, c], minlength=size.size)
+                     for c in range(S.shape[1])], axis=1)
 
 
 def observed_limits(F, observed) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
