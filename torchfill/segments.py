@@ -422,12 +422,14 @@ class PairStats:
 
 def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = None, *,
                neighbours: int = NEIGHBOURS, min_frames: int = 20,
-               orientation=True) -> PairStats:
+               orientation=True, spread=True) -> PairStats:
     """:class:`PairStats` of ``pairs`` (default: :func:`neighbour_pairs`) over at most
     ``PAIR_FRAMES`` evenly spaced frames, a block of pairs at a time. Pairs seen together in fewer
     than ``min_frames`` frames get NaN statistics. ``orientation=False``: no ``direction`` and
     ``cone`` (None; half of the time: what the segments and the rigid fill's weights need); a
-    bool per pair: those of these pairs only (NaN for the others; each pair's own bits)."""
+    bool per pair: those of these pairs only (NaN for the others; each pair's own bits).
+    ``spread``: a bool per pair likewise gives the ``spread`` and ``wide`` of these pairs only
+    (a body's scale needs the other pairs' medians alone)."""
     X = np.asarray(X, dtype=np.float64)
     if observed is None:
         observed = np.isfinite(X).all(axis=2)
@@ -444,6 +446,7 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     n = j.size
     med, mad, wide = (np.full(n, np.nan) for _ in range(3))
     turn = np.broadcast_to(np.asarray(orientation, dtype=bool), (n,))[order]
+    spreads = np.broadcast_to(np.asarray(spread, dtype=bool), (n,))[order]
     cone = np.full(n, np.nan) if orientation is not False else None
     direction = np.full((n, X.shape[2]), np.nan) if orientation is not False else None
     count = np.zeros(n, np.int64)
@@ -458,10 +461,7 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
         with np.errstate(all="ignore"):
             S = np.sort(D, axis=1)
             m = _col_quantile(S.T, c, 0.5)
-            dev = np.abs(S - m[:, None])        # |D - m| in the order of S: falls, then rises
-            dev.sort(axis=1)                    # (numpy sorts that shape faster)
-            s = 1.4826 * _col_quantile(dev.T, c, 0.5)
-            w = _col_quantile(dev.T, c, 0.95)
+            s, w = _spreads(S, m, c, spreads[a:a + block])
         keep = c >= min_frames
         med[a:a + block] = np.where(keep, m, np.nan)
         mad[a:a + block] = np.where(keep, s, np.nan)
@@ -474,6 +474,19 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
                 V[at], D[at], c[at], keep[at])
         count[a:a + block] = c
     return PairStats(j, k, med, mad, wide, count, X.shape[1], direction, cone)
+
+
+def _spreads(S: np.ndarray, m: np.ndarray, c: np.ndarray, rows: np.ndarray):
+    """1.4826 x the median and the 95th percentile of ``|D - m|`` for the ``rows`` of the sorted
+    distances ``S`` (n, T) (``c`` finite each, median ``m``); NaN in the other rows."""
+    s, w = np.full(m.shape, np.nan), np.full(m.shape, np.nan)
+    if rows.any():
+        S, m, c = (S, m, c) if rows.all() else (S[rows], m[rows], c[rows])
+        dev = np.abs(S - m[:, None])        # |D - m| in the order of S: falls, then rises
+        dev.sort(axis=1)                    # (numpy sorts that shape faster)
+        s[rows] = 1.4826 * _col_quantile(dev.T, c, 0.5)
+        w[rows] = _col_quantile(dev.T, c, 0.95)
+    return s, w
 
 
 def _norm_coords(V: np.ndarray) -> np.ndarray:

@@ -81,11 +81,11 @@ def rigid_pairs(X, observed=None, *, tol: float = 0.005, min_frames: int = 20,
     J = X.shape[1]
     st = every = None
     if pairs is None and J * (J - 1) // 2 <= SCALE_PAIRS:    # the scale measures every pair:
-        near = _segments.neighbour_pairs(X, observed)     # the orientation of these only
+        near = _segments.neighbour_pairs(X, observed)     # their orientation and spread only
         a, b = np.triu_indices(J, 1)
         turn = np.isin(a * J + b, near[0] * J + near[1])
         every = _segments.pair_stats(X, observed, (a, b), min_frames=min_frames,
-                                     orientation=turn)
+                                     orientation=turn, spread=turn)
         st = _subset(every, near)                       # each pair on its own
     if st is None:
         st = _segments.pair_stats(X, observed, pairs, min_frames=min_frames)
