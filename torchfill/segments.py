@@ -56,9 +56,7 @@ NEIGHBOURS = 12
 NEIGHBOUR_FRAMES = 5
 #: Pair statistics read at most this many frames, evenly spaced.
 PAIR_FRAMES = 12000
-#: Pairs are measured this many (frame, pair) entries at a time (1 MB per float64 array; the
-#: 820 pairs of 3000 x 41 markers took 0.31 s a call, median of 7, at 1 << 17 entries and 0.37 s
-#: at 1 << 20: arrays that stay in the cache).
+#: Pairs are measured this many (frame, pair) entries at a time (1 MB arrays stay in the cache).
 PAIR_BLOCK = 1 << 17
 #: Data-found segments: each marker's nearest neighbours (in a few frames) whose spreads the
 #: clustering reads (more than ``NEIGHBOURS``: average linkage reads the pairs between two
@@ -428,8 +426,7 @@ def pair_stats(X, observed=None, pairs: tuple[np.ndarray, np.ndarray] | None = N
     than ``min_frames`` frames get NaN statistics. ``orientation=False``: no ``direction`` and
     ``cone`` (None; half of the time: what the segments and the rigid fill's weights need); a
     bool per pair: those of these pairs only (NaN for the others; each pair's own bits).
-    ``spread``: a bool per pair likewise gives the ``spread`` and ``wide`` of these pairs only
-    (a body's scale needs the other pairs' medians alone)."""
+    ``spread``: likewise the ``spread`` and ``wide`` of some pairs only (a scale needs medians)."""
     X = np.asarray(X, dtype=np.float64)
     if observed is None:
         observed = np.isfinite(X).all(axis=2)
@@ -481,17 +478,16 @@ def _spreads(S: np.ndarray, m: np.ndarray, c: np.ndarray, rows: np.ndarray):
     distances ``S`` (n, T) (``c`` finite each, median ``m``); NaN in the other rows."""
     s, w = np.full(m.shape, np.nan), np.full(m.shape, np.nan)
     if rows.any():
-        S, m, c = (S, m, c) if rows.all() else (S[rows], m[rows], c[rows])
-        dev = np.abs(S - m[:, None])        # |D - m| in the order of S: falls, then rises
-        dev.sort(axis=1)                    # (numpy sorts that shape faster)
+        dev = np.abs(S[rows] - m[rows, None])   # |D - m| in the order of S: falls, then rises
+        dev.sort(axis=1)                        # (numpy sorts that shape faster)
+        c = c[rows]
         s[rows] = 1.4826 * _col_quantile(dev.T, c, 0.5)
         w[rows] = _col_quantile(dev.T, c, 0.95)
     return s, w
 
 
 def _norm_coords(V: np.ndarray) -> np.ndarray:
-    """:func:`torchfill.metrics.norm_last` over the coordinates of ``V`` (n, D, T): the same
-    bits, the squares added one coordinate after another."""
+    """:func:`torchfill.metrics.norm_last` over the coordinates of ``V`` (n, D, T): its bits."""
     if not 0 < V.shape[1] < 8:
         return norm_last(np.ascontiguousarray(np.moveaxis(V, 1, -1)))
     s = V[:, 0] * V[:, 0]
@@ -511,8 +507,7 @@ def _orientation(V: np.ndarray, D: np.ndarray, c: np.ndarray, keep: np.ndarray):
         m = U.sum(axis=0)
         m /= np.linalg.norm(m, axis=-1, keepdims=True)
         turn = np.clip(np.einsum("tnd,nd->tn", U, m), -1.0, 1.0)
-        R = np.empty(D.shape)
-        np.negative(turn.T, out=R)              # -cos: in the angles' order (arccos falls)
+        R = np.negative(turn.T, out=np.empty(D.shape))  # -cos: the angles' order (arccos falls)
         R[~fin] = -np.inf                       # below every angle's: out of the top
         cone = _top_quantile(R, c, 0.95, lambda x: np.arccos(-x))
     return np.where(keep[:, None], m, np.nan), np.where(keep, cone, np.nan)
@@ -528,25 +523,20 @@ def _top_quantile(R: np.ndarray, n: np.ndarray, q: float, f) -> np.ndarray:
         return np.full(R.shape[0], np.nan)
     S = np.partition(R, T - top, axis=1)[:, T - top:]
     S.sort(axis=1)
-    p = q * np.maximum(n - 1, 0)
-    lo = np.floor(p).astype(np.int64)
-    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    rows = np.arange(R.shape[0])
-    a = f(S[rows, np.clip(top - n + lo, 0, top - 1)])
-    b = f(S[rows, np.clip(top - n + hi, 0, top - 1)])
-    return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
+    return _col_quantile(S.T, n, q, f, shift=top - n)
 
 
-def _col_quantile(S: np.ndarray, n: np.ndarray, q: float, f=None) -> np.ndarray:
+def _col_quantile(S: np.ndarray, n: np.ndarray, q: float, f=None, shift=None) -> np.ndarray:
     """``np.nanquantile(D, q, axis=0)`` (linear) from ``S = np.sort(D, axis=0)`` (NaNs last)
     and the finite counts ``n`` per column, without numpy's per-column loop (NaN where n = 0).
     ``f``: a non-decreasing map, the quantile of ``f(D)`` from the two order statistics of
-    ``D`` it needs (``f`` applied to two values a column, not to all of ``D``)."""
+    ``D`` it needs (``f`` applied to two values a column, not to all of ``D``). ``shift`` (per
+    column): the order statistics lie that much further down ``S`` (a column's top rows)."""
     p = q * np.maximum(n - 1, 0)
     lo = np.floor(p).astype(np.int64)
     hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    a = np.take_along_axis(S, lo[None], axis=0)[0]
-    b = np.take_along_axis(S, hi[None], axis=0)[0]
+    at = (lo, hi) if shift is None else (np.clip(x + shift, 0, len(S) - 1) for x in (lo, hi))
+    a, b = (np.take_along_axis(S, x[None], axis=0)[0] for x in at)
     if f is not None:
         a, b = f(a), f(b)
     return np.where(n > 0, a + (b - a) * (p - lo), np.nan)
