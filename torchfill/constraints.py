@@ -624,8 +624,8 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
     the data). Returns the constrained fills (a candidate's own value where the post-step left
     NaN) and the (T, J) samples that rigid donors fill: those depend on the observed samples only,
     so the rigid pairs and donors are found once for all candidates, and the candidates are
-    constrained in threads (numpy lets go of the GIL for most of it); so are the step limit and the volume. ``fill()`` passes this
-    function to ``auto`` as its ``post`` fit data.
+    constrained in threads (numpy lets go of the GIL for most of it); so are the step limit and
+    the volume. ``fill()`` passes this function to ``auto`` as its ``post`` fit data.
     """
     from .runtime.threads import thread_map
 
