@@ -294,7 +294,8 @@ def _bridge(X, seen, j, M, w, est, err, holes, curve) -> np.ndarray:
     sides = []
     for e in (b, a):
         x = np.where(seen[e, j][:, None], X[e, j], est[e])
-        sides.append((yield from _carry_few(X[e][:, M], X[t][:, M], use[e] & use[t], x, w)))
+        sides.append((yield from _carry_few(X[e[:, None], M], X[t[:, None], M], use[e] & use[t],
+                                            x, w)))
     s = ((t - b) / (a - b))[:, None]
     est[t] = (1 - s) * sides[0] + s * sides[1]
     anchor = np.maximum(np.where(seen[b, j], 0.0, err[b]), np.where(seen[a, j], 0.0, err[a]))

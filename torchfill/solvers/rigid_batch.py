@@ -47,7 +47,8 @@ def _drive(tasks: list, X: np.ndarray | None = None, sizes=None) -> list:
     positions ``X`` (NaN where not observed). Returns their return values in order."""
     out: list = [None] * len(tasks)
     if X is not None:                       # zeros for NaN once, and each coordinate's plane
-        X0 = np.nan_to_num(np.ascontiguousarray(X))
+        X = np.ascontiguousarray(X)                     # its rows taken flat (:func:`_fit_block`)
+        X0 = np.nan_to_num(X)
         X = (X, X0, np.ascontiguousarray(X0.reshape(-1, X0.shape[2]).T))
     sizes = np.ones(len(tasks)) if sizes is None else np.asarray(sizes, float)
     wave = np.floor((np.cumsum(sizes) - sizes) / WAVE_ROWS)
