@@ -501,8 +501,7 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
 
     for k in gapped:
         if local_models:
-            order = torch.argsort(score[k]).tolist()
-            scored = torch.isfinite(score[k])
+            order, scored = torch.argsort(score[k]).tolist(), torch.isfinite(score[k])
             filtered(k)                                  # as it was before its gaps are filled
         glr_cache, local_cache = {}, {}
         for _, a, b in ops.runs(todo[:T0, k:k + 1]):
@@ -521,11 +520,8 @@ def tits_fill(P: Tensor, missing: Tensor, models: set[str], *, window: int, smoo
                     preds += [local.predict(m, a, b) for m in ("li", "lpr", "lgrnn") if m in models]
                 else:
                     local = None
-            glob = []
-            if "glr" in models:
-                g = glr_fill(Y, miss, k, a, b, glr_cache, T0, seen)
-                if g is not None:
-                    glob.append(g)
+            g = glr_fill(Y, miss, k, a, b, glr_cache, T0, seen) if "glr" in models else None
+            glob = [] if g is None else [g]
             if W is not None:
                 glob.append(wpca_fill(W, Y, k, a, b, T0))
             if local is not None:
