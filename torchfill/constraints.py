@@ -189,9 +189,10 @@ def constrain(filled, missing, *, extrapolate: int | None = None, long: int | No
     dropped = _limit_extrapolation(F, free, extrapolate, report, support)
     _interpolate_blackouts(F, observed, free, report)
     # samples the limit dropped that the blackout interpolation filled again are not left NaN
-    report.unfilled_extrapolation = int((dropped & ~_finite(F)).sum())
-    free &= _finite(F)
-    _blend_edges(F, free)
+    ok = _finite(F)
+    report.unfilled_extrapolation = int((dropped & ~ok).sum())
+    free &= ok
+    _blend_edges(F, free, ok=ok)
     if F.shape[2] == 3:
         _soft_distances(F, free if anchored is None else free & ~anchored, pairs)
     report.step_limit, bounds = limits if limits is not None else observed_limits(F, observed)
@@ -280,12 +281,12 @@ def _interpolate_blackouts(F, observed, free, report) -> None:
         F[black & ~inside, j] = np.nan
 
 
-def _blend_edges(F, free, held=None) -> None:
+def _blend_edges(F, free, held=None, ok=None) -> None:
     """Offset each gap's fill so that it continues the trajectory at both edges (blended).
     ``held`` (T, J): only an edge beside these samples moves the fill; beside another finite
-    sample the offset is zero there (see :func:`meet_kept`)."""
+    sample the offset is zero there (see :func:`meet_kept`). ``ok``: ``_finite(F)`` if known."""
     T = F.shape[0]
-    ok = _finite(F)
+    ok = _finite(F) if ok is None else ok
     for j, a, b, _, _ in _runs(free, T):
         L = b - a
         d0 = _edge_offset(F, ok, j, a, side=-1)
