@@ -60,9 +60,8 @@ EPS_TRIAL_RATIO = 1.7
 #: Fewest iterations of a later schedule's trial.
 EPS_TRIAL_MIN = 30
 #: A later schedule is already stopped after a third of its trial (at least ``EPS_EARLY_MIN``
-#: iterations) when its best held-out error is ``EPS_EARLY_RATIO`` times the best so far. On the
-#: real-gap and mask suites no schedule that went on to win was above 2.34x there; the ones
-#: stopped early lost (see experiments/results/tucker.md, "Early end of a losing schedule").
+#: iterations) when its best held-out error is ``EPS_EARLY_RATIO`` times the best so far (traced:
+#: experiments/results/tucker.md, "Early end of a losing schedule").
 EPS_EARLY_RATIO = 2 * EPS_TRIAL_RATIO
 #: Fewest iterations before the early check.
 EPS_EARLY_MIN = 10
