@@ -361,6 +361,8 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
     Xc = X - m                      # in place from here: long recordings hold fewer full copies
     Xc /= s
     Xc[~seen] = np.nan
+    np.round(Xc, KEY_DECIMALS, out=Xc)  # the key's values: what is computed depends on the key
+    Xc += 0.0                           # alone, not on whose units filled the cache first
     segs = index_segments(segments, labels, Xc, seen)
     key = _fingerprint(Xc, seen, segs, min_mates) if Xc.nbytes <= CACHE_BYTES else None
     hit = _KEPT.keyed(key, lambda: _segment_fill(Xc, seen, segs, min_mates))
@@ -382,6 +384,11 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
 #: on the hold-out mask and on the real gaps, each in its own units -- and it was 13 of the
 #: default's 42 s on bench_long's 3000 frames.
 CACHE_ENTRIES = 4
+#: The positions, in units of the recording's spread (:func:`_frame_of`), are rounded to this
+#: many decimals (0.01 micrometre on a body) before anything is computed from them: the last bits
+#: of a normalization never cross that in practice, so the same recording in the data's
+#: units and in a solver's normalized ones is one input and one result, whichever came first.
+KEY_DECIMALS = 8
 CACHE_BYTES = 64 << 20
 _KEPT = Memo(CACHE_ENTRIES, max_bytes=2 * CACHE_BYTES)     # the results: ~1.7x the positions
 
@@ -404,12 +411,12 @@ def _frame_of(X: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _fingerprint(Xc: np.ndarray, seen: np.ndarray, segs: dict, min_mates: int) -> bytes:
-    """Cache key: the observed positions (rounded to 1e-6 of the recording's spread, which the
-    last bits of a normalization never cross in practice), the mask, the segments."""
+    """Cache key: the observed positions (rounded to ``KEY_DECIMALS``), the mask, the
+    segments."""
     h = hashlib.blake2b(digest_size=20)
     h.update(np.asarray(seen.shape, np.int64).tobytes())
     h.update(np.packbits(seen).tobytes())
-    h.update((np.round(Xc[seen], 6) + 0.0).tobytes())
+    h.update(Xc[seen].tobytes())
     h.update(repr((sorted(segs.items()), min_mates)).encode())
     return h.digest()
 
