@@ -385,9 +385,10 @@ def segment_fill(X, observed=None, segments=None, labels=None, *, min_mates: int
 #: default's 42 s on bench_long's 3000 frames.
 CACHE_ENTRIES = 4
 #: The positions, in units of the recording's spread (:func:`_frame_of`), are rounded to this
-#: many decimals (0.01 micrometre on a body) before anything is computed from them: the last bits
-#: of a normalization never cross that in practice, so the same recording in the data's
-#: units and in a solver's normalized ones is one input and one result, whichever came first.
+#: many decimals (0.01 micrometre or less on a body) before anything is computed from them, so
+#: the same recording in the data's units and in a solver's normalized ones is one input and
+#: one result, whichever came first (the rare one whose last bits cross a rounding step is
+#: computed again in its own units, as deterministically).
 KEY_DECIMALS = 8
 CACHE_BYTES = 64 << 20
 _KEPT = Memo(CACHE_ENTRIES, max_bytes=2 * CACHE_BYTES)     # the results: ~1.7x the positions
