@@ -68,9 +68,9 @@ def test_default_with_session(cmu85, monkeypatch):
     X, truth, mask, train = cmu85
     stages, fit_all = [], Fits.fit_all
 
-    def recorded(self, names, fit_missing, stage="fit", case=None):
+    def recorded(self, names, fit_missing, stage="fit", case=None, **kw):
         stages.append((stage, [n for n in names if n.endswith(SESSION)]))
-        return fit_all(self, names, fit_missing, stage, case)
+        return fit_all(self, names, fit_missing, stage, case, **kw)
     monkeypatch.setattr(Fits, "fit_all", recorded)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -122,9 +122,9 @@ def test_a_second_draw_holds_out_other_observed_samples(monkeypatch):
     solver = get_solver("auto", candidates=["pchip", "spline", "svt"], min_gaps=0)
     hidden, fit_all = [], Fits.fit_all
 
-    def spy(self, names, fit_missing, stage="fit", case=None):
+    def spy(self, names, fit_missing, stage="fit", case=None, **kw):
         hidden.append((stage, fit_missing.clone()))
-        return fit_all(self, names, fit_missing, stage, case)
+        return fit_all(self, names, fit_missing, stage, case, **kw)
     monkeypatch.setattr(Fits, "fit_all", spy)
     solver.fit(torch.from_numpy(X))
     missing = torch.from_numpy(np.isnan(X).any(axis=2))
@@ -142,9 +142,9 @@ def test_a_recording_with_few_gaps_gets_more_draws(min_gaps, draws, monkeypatch)
     solver = get_solver("auto", candidates=["pchip", "spline"], min_gaps=min_gaps)
     stages, fit_all = [], Fits.fit_all
 
-    def spy(self, names, fit_missing, stage="fit", case=None):
+    def spy(self, names, fit_missing, stage="fit", case=None, **kw):
         stages.append(stage)
-        return fit_all(self, names, fit_missing, stage, case)
+        return fit_all(self, names, fit_missing, stage, case, **kw)
     monkeypatch.setattr(Fits, "fit_all", spy)
     solver.fit(torch.from_numpy(_gappy()))
     assert stages.count("fit") + stages.count("draw") == draws
@@ -158,9 +158,9 @@ def test_one_draw_where_its_held_out_gaps_are_many_distinct_windows(monkeypatch)
         solver = get_solver("auto", candidates=["pchip", "spline"])
         stages, fit_all = [], Fits.fit_all
 
-        def spy(self, names, fit_missing, stage="fit", case=None):
+        def spy(self, names, fit_missing, stage="fit", case=None, **kw):
             stages.append(stage)
-            return fit_all(self, names, fit_missing, stage, case)
+            return fit_all(self, names, fit_missing, stage, case, **kw)
         monkeypatch.setattr(Fits, "fit_all", spy)
         solver.fit(torch.from_numpy(X))
         monkeypatch.undo()
@@ -182,9 +182,9 @@ def test_the_extra_draws_for_few_gaps_leave_tucker_tnn_out(monkeypatch):
     solver = get_solver("auto", candidates=["pchip", "tucker_tnn"])
     stages, fit_all = [], Fits.fit_all
 
-    def spy(self, names, fit_missing, stage="fit", case=None):
+    def spy(self, names, fit_missing, stage="fit", case=None, **kw):
         stages.append((stage, list(names)))
-        return fit_all(self, names, fit_missing, stage, case)
+        return fit_all(self, names, fit_missing, stage, case, **kw)
     monkeypatch.setattr(Fits, "fit_all", spy)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -419,9 +419,9 @@ def test_a_later_window_reuses_the_first_windows_choice(recording, monkeypatch):
         later = get_solver("auto", choice=choice)
         stages, fit_all = [], Fits.fit_all
 
-        def spy(self, names, fit_missing, stage="fit", case=None):
+        def spy(self, names, fit_missing, stage="fit", case=None, **kw):
             stages.append((stage, list(names)))
-            return fit_all(self, names, fit_missing, stage, case)
+            return fit_all(self, names, fit_missing, stage, case, **kw)
         monkeypatch.setattr(Fits, "fit_all", spy)
         later.fit(X[800:])
     weighted = {n for k in first.weights_.values() for n in k}
@@ -453,9 +453,41 @@ def test_a_later_window_that_would_try_other_candidates_chooses_for_itself(monke
         solver = get_solver("auto", choice=choice)
         stages, fit_all = [], Fits.fit_all
 
-        def spy(self, names, fit_missing, stage="fit", case=None):
+        def spy(self, names, fit_missing, stage="fit", case=None, **kw):
             stages.append(stage)
-            return fit_all(self, names, fit_missing, stage, case)
+            return fit_all(self, names, fit_missing, stage, case, **kw)
         monkeypatch.setattr(Fits, "fit_all", spy)
         solver.fit(torch.from_numpy(later))
     assert stages[:2] == ["fit", "draw"] and "tucker_tnn" in solver.scores_
+
+
+def test_tucker_tnn_of_a_later_draw_runs_on_beside_the_next_draws_with_the_same_bits(
+        recording, monkeypatch):
+    """On a recording with few gaps (several hold-out draws, ``tucker_tnn`` in the second), its
+    second-draw fit runs on in the background while the cheaper candidates make the next draws,
+    and is scored at the end: the fill and the error estimate are those of the draws made one
+    after the other, bit for bit (two threads, whatever an earlier test left)."""
+    x = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
+    behind, fit_all = [], Fits.fit_all
+
+    def spy(self, names, fit_missing, stage="fit", case=None, **kw):
+        outs = list(fit_all(self, names, fit_missing, stage, case, **kw))
+        behind.extend(n for n, out in zip(names, outs)
+                      if not isinstance(out, (torch.Tensor, Exception)))
+        return outs
+
+    monkeypatch.setattr(Fits, "fit_all", spy)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out, std = torchfill.fill(x, return_std=True)
+            assert behind == ["tucker_tnn"]
+            monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)   # round by round
+            again, std_again = torchfill.fill(x, return_std=True)
+    finally:
+        torch.set_num_threads(before)
+    assert behind == ["tucker_tnn"]
+    assert np.array_equal(out.points, again.points, equal_nan=True)
+    assert np.array_equal(np.asarray(std), np.asarray(std_again), equal_nan=True)

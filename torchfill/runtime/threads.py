@@ -18,7 +18,7 @@ import os
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 
@@ -68,6 +68,56 @@ def serial():
         _INSIDE.active = before
 
 
+class Lanes:
+    """Worker threads set up as :func:`thread_map`'s (each on ``share`` intra-op threads, set in
+    that thread only), kept open across several batches of work: a long item runs in one lane
+    while the next batches run in the others. ``submit(fn, *args)`` returns a
+    :class:`~concurrent.futures.Future`; items start in submission order. Where
+    :func:`thread_map` would run in the calling thread (one worker, or inside another
+    ``thread_map`` or :func:`serial`), ``parallel`` is False and ``submit`` runs ``fn`` at once.
+    Leaving the block cancels what has not started and waits for the rest; the caller's warning
+    filters are restored."""
+
+    def __init__(self, workers: int | None = None) -> None:
+        threads = torch.get_num_threads()
+        self.workers = min(workers or threads, threads)
+        self.parallel = self.workers > 1 and not getattr(_INSIDE, "active", False)
+        self.share = max(1, threads // max(self.workers, 1))
+        self._pool: ThreadPoolExecutor | None = None
+        self._filters = warnings.catch_warnings()
+
+    def __enter__(self) -> "Lanes":
+        if self.parallel:
+            self._filters.__enter__()
+            self._pool = ThreadPoolExecutor(self.workers, "torchfill")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+            self._filters.__exit__(*exc)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        if self._pool is None:
+            done: Future = Future()
+            try:
+                done.set_result(fn(*args))
+            except BaseException as err:     # noqa: BLE001 - handed to the caller by result()
+                done.set_exception(err)
+            return done
+        return self._pool.submit(_in_lane, self.share, fn, args)
+
+
+def _in_lane(share: int, fn: Callable[..., Any], args: tuple) -> Any:
+    _INSIDE.active = True
+    torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)
+    for set_threads in (_omp_set_num_threads(), _mkl_set_num_threads_local()):
+        if set_threads is not None:  # this thread's OpenMP team and MKL count only
+            set_threads(share)
+    return fn(*args)
+
+
 def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = None,
                cost: Callable[[Any], float] | None = None, share: int | None = None) -> Iterator:
     """``fn(item)`` for every item, yielded in the items' order whatever finishes first.
@@ -90,18 +140,9 @@ def thread_map(fn: Callable[[Any], Any], items: Iterable, workers: int | None = 
         yield from map(fn, items)
         return
     share = share or max(1, threads // workers)
-    setters = [f for f in (_omp_set_num_threads(), _mkl_set_num_threads_local()) if f is not None]
-
-    def run(item):
-        _INSIDE.active = True
-        torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)
-        for set_threads in setters:      # this thread's OpenMP team and MKL count only
-            set_threads(share)
-        return fn(item)
-
     order = range(len(items)) if cost is None else \
         sorted(range(len(items)), key=lambda i: -cost(items[i]))
     with warnings.catch_warnings(), ThreadPoolExecutor(workers, "torchfill") as pool:
-        futures = {i: pool.submit(run, items[i]) for i in order}
+        futures = {i: pool.submit(_in_lane, share, fn, (items[i],)) for i in order}
         for i in range(len(items)):
             yield futures.pop(i).result()

@@ -175,7 +175,8 @@ class Auto(OneShotSolver):
         self._fits = Fits(self.M_, self.mu_, self.sigma_, self.fit_data_, self.seed,
                           self.candidate_params, self.candidates, self.carried_, self.report)
         try:
-            names = self._fill(seen)
+            with self._fits.open_lanes():
+                names = self._fill(seen)
         finally:
             self._fits = None
         return {"delta": 0.0, "candidates": float(len(names))}

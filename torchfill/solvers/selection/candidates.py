@@ -11,7 +11,7 @@ import torch
 
 from ... import ops
 from ...runtime.memory import trim_heap
-from ...runtime.threads import thread_map
+from ...runtime.threads import Lanes, thread_map
 from ..base import available, get_solver
 from .kinds import interior_share
 
@@ -50,6 +50,11 @@ COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3
         "pca_gloersen": 0.3}
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
+
+
+def cost(name: str) -> float:
+    """A candidate's relative time (``COST``; a ``+session`` twin as its method)."""
+    return COST.get(name.removesuffix(SESSION), 1.0)
 
 
 def default_names(Omega: Tensor | None, training: bool) -> list[str]:
@@ -102,6 +107,19 @@ class Fits:
         self.seed, self.params, self.explicit = seed, params or {}, explicit
         self.carried, self.report = carried, report
         self.warm: dict[str, tuple] = {}        # each candidate's first fit's warm_start()
+        self.lanes: Lanes | None = None         # worker threads kept open (:meth:`open_lanes`)
+
+    def open_lanes(self) -> Lanes:
+        """Worker threads for the fits of this recording (one on a GPU), kept open across the
+        rounds so that a long fit runs on beside the next draws: ``with fits.open_lanes():``."""
+        self.lanes = Lanes(None if self.M.device.type == "cpu" else 1)
+        return self.lanes
+
+    def in_lanes(self, size: int) -> bool:
+        """Whether the fits of a round of ``size`` run in the open lanes: each on the intra-op
+        threads :func:`thread_map` would give it (there: one, for a round of at least as many
+        fits as lanes), so that one of them can also run on in the background (``behind``)."""
+        return self.lanes is not None and self.lanes.parallel and size >= self.lanes.workers
 
     def fit_one(self, name: str, fit_missing: Tensor, case: tuple | None = None,
                 stage: str = "fit") -> Tensor:
@@ -152,12 +170,13 @@ class Fits:
             trim_heap(self.M.element_size() * self.M.numel())
 
     def fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit",
-                case: tuple | None = None) -> Iterator:
-        """:meth:`attempt` for each name, in order; on CPU in threads (``runtime.threads``).
-        Each finished fit is reported: ``{stage}=k``, ``{stage}s=n`` (``fit``/``fits`` on the
-        hold-out, ``refit``/``refits``; the step's own record counts the ``candidates`` that
-        ran)."""
-        workers = None if self.M.device.type == "cpu" else 1
+                case: tuple | None = None, behind: tuple = ()) -> Iterator:
+        """:meth:`attempt` for each name, in order; on CPU in threads (``runtime.threads``: in
+        the open lanes, else for this call alone), the costliest first. Each finished fit is
+        reported: ``{stage}=k``, ``{stage}s=n`` (``fit``/``fits`` on the hold-out,
+        ``refit``/``refits``; the step's own record counts the ``candidates`` that ran). In the
+        lanes (:meth:`in_lanes`), the names in ``behind`` are not waited for: their place holds
+        the :class:`~concurrent.futures.Future` of their fit, which runs on in the background."""
         lock, done = threading.Lock(), [0]
 
         def attempt(name: str):
@@ -166,8 +185,13 @@ class Fits:
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
             return out
-        return thread_map(attempt, names, workers,
-                              cost=lambda name: COST.get(name.removesuffix(SESSION), 1.0))
+        if not self.in_lanes(len(names)):
+            workers = None if self.M.device.type == "cpu" else 1
+            return thread_map(attempt, names, workers, cost=cost)
+        futures = {i: self.lanes.submit(attempt, names[i])
+                   for i in sorted(range(len(names)), key=lambda i: -cost(names[i]))}
+        return (futures.pop(i) if names[i] in behind else futures.pop(i).result()
+                for i in range(len(names)))
 
     def constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
         """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data

@@ -98,5 +98,5 @@ def cross_holdout(fits: Fits, names: list[str], seen: Tensor
     outs = list(fits.fit_all(names, missing, "cross", (Mx, train)))
     if all(isinstance(out, Exception) for out in outs):
         return None, window, {}
-    got, err2 = scored(fits, names, outs, missing, Mx.reshape(T, J, -1), gaps & obs)
+    got, err2, _ = scored(fits, names, outs, missing, Mx.reshape(T, J, -1), gaps & obs)
     return got, window, {nm: float(e.nanmean().sqrt()) for nm, e in zip(names, err2)}

@@ -3,6 +3,8 @@ candidate's fill of them through the post-step, and its squared errors there per
 two draws and more for a recording with few gaps: docs/real-gaps.md."""
 from __future__ import annotations
 
+from concurrent.futures import Future
+
 import torch
 
 from ... import ops
@@ -43,12 +45,13 @@ def holdout(seen: Tensor, generator: torch.Generator) -> Tensor:
 
 
 def scored(fits: Fits, names: list[str], outs, missing: Tensor, Xt: Tensor, V: Tensor
-           ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor]:
+           ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor, Tensor]:
     """The candidates' fits ``outs`` (in ``names``' order; an exception: the candidate
     failed) of ``Xt`` (T, J, D) with ``missing`` hidden, through the post-step and scored on
     the held-out samples ``V``: their squared errors (C, N), kinds (N,) and gap ids (N,) on
-    the samples they fill themselves (not rigid donors); and the squared errors on all of
-    ``V`` (C, N_V). A failed candidate's errors are NaN."""
+    the samples they fill themselves (not rigid donors); the squared errors on all of ``V``
+    (C, N_V); and which of ``V``'s samples those are (N_V,). A failed candidate's errors are
+    NaN."""
     C = len(names)
     fills = torch.full((C, *Xt.shape), float("nan"), dtype=fits.M.dtype, device=V.device)
     for c, out in enumerate(outs):
@@ -59,7 +62,7 @@ def scored(fits: Fits, names: list[str], outs, missing: Tensor, Xt: Tensor, V: T
     kinds = sample_kinds([n in PARTIAL for n in names], fills, missing, Xt)[-1]
     err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
     decide = ~donor[V]
-    return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2
+    return (err2[:, decide], kinds[V][decide], gap_index(V)[V][decide]), err2, decide
 
 
 def first_scores(fills: Tensor, donor: Tensor, kinds: Tensor, Xt: Tensor, V: Tensor
@@ -72,20 +75,38 @@ def first_scores(fills: Tensor, donor: Tensor, kinds: Tensor, Xt: Tensor, V: Ten
 
 
 def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torch.Generator,
-         skip: tuple = ()) -> tuple[Tensor, Tensor, Tensor]:
+         skip: tuple = (), behind: tuple = ()) -> tuple[tuple[Tensor, Tensor, Tensor], list]:
     """Another hold-out draw, scored like the first (:func:`scored`; none when the draw
-    repeats ``V0``). The ``+session`` twins and the candidates in ``skip`` are not fitted again
-    (see ``NOT_DRAWN``)."""
+    repeats ``V0``), and what is still running. The ``+session`` twins and the candidates in
+    ``skip`` are not fitted again (see ``NOT_DRAWN``). The candidates in ``behind`` run on in
+    the background while the others are scored and the next draws made (:meth:`Fits.fit_all`):
+    their errors are NaN until :func:`settle` scores them."""
     V = holdout(seen, generator)
     if bool((V == V0).all()):
         empty = torch.empty(0, dtype=torch.long, device=V.device)
-        return torch.empty(len(names), 0, dtype=fits.M.dtype, device=V.device), empty, empty
+        return (torch.empty(len(names), 0, dtype=fits.M.dtype, device=V.device), empty, empty), []
     fit_missing = ~seen | V
     Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
     run = [name for name in names if not name.endswith(SESSION) and name not in skip]
-    fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw")))
+    fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw", behind=behind)))
+    pending = [(names.index(n), out) for n, out in fitted.items() if isinstance(out, Future)]
     outs = [fitted.get(name, NOT_DRAWN) for name in names]
-    return scored(fits, names, outs, fit_missing, Xt, V)[0]
+    outs = [NOT_DRAWN if isinstance(out, Future) else out for out in outs]
+    scores, _, decide = scored(fits, names, outs, fit_missing, Xt, V)
+    return scores, [(c, future, fit_missing, V, decide) for c, future in pending]
+
+
+def settle(fits: Fits, err2: Tensor, pending: list) -> None:
+    """The fits :func:`draw` left running, each through the post-step and scored into its row
+    of that draw's squared errors ``err2`` (C, N) as :func:`scored` scores it (a failed one
+    stays NaN)."""
+    Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
+    for c, future, missing, V, decide in pending:
+        out = future.result()
+        if isinstance(out, Exception) or not bool(torch.isfinite(out).any()):
+            continue
+        F = fits.constrain(out.to(fits.M.dtype)[None], missing)[0]
+        err2[c] = ((F - Xt) ** 2).mean(dim=3)[:, V][0][decide]
 
 
 def windows(V: Tensor, gap_ids: Tensor) -> int:
@@ -104,12 +125,17 @@ def pooled(first: tuple, fits: Fits, names: list[str], seen: Tensor, V: Tensor,
     and gap ids (N,; apart between the draws). One draw is enough where its held-out gaps
     take ``ENOUGH_WINDOWS`` distinct windows or more (:func:`windows`): many independent events,
     not one window of many markers (``min_gaps=0``: exactly ``draws``). The extra draws for
-    ``min_gaps`` leave the ``INTERIOR`` candidates (``tucker_tnn``, the costliest) out."""
-    pool = [first]
+    ``min_gaps`` leave the ``INTERIOR`` candidates (``tucker_tnn``, the costliest) out; where
+    they are drawn, they run on beside the next draws and are scored at the end (:func:`settle`)."""
+    pool, pending = [first], []
     enough = min_gaps > 0 and windows(V, first[2]) >= ENOUGH_WINDOWS
     while not enough and (len(pool) < draws or (len(pool) < MAX_DRAWS and sum(
             int(p[2].unique().numel()) for p in pool) < min_gaps)):
         skip = INTERIOR if len(pool) >= draws else ()            # an extra draw: cheap ones
-        pool.append(draw(fits, names, seen, V, generator, skip))
+        scores, running = draw(fits, names, seen, V, generator, skip, behind=INTERIOR)
+        pool.append(scores)
+        pending.append((scores[0], running))
+    for err2, running in pending:           # the costly fits ran on beside the later draws
+        settle(fits, err2, running)
     return (torch.cat([p[0] for p in pool], dim=1), torch.cat([p[1] for p in pool]),
             torch.cat([p[2] + i * seen.numel() for i, p in enumerate(pool)]))
