@@ -74,9 +74,9 @@ class Lanes:
     while the next batches run in the others. ``submit(fn, *args)`` returns a
     :class:`~concurrent.futures.Future`; items start in submission order. Where
     :func:`thread_map` would run in the calling thread (one worker, or inside another
-    ``thread_map`` or :func:`serial`), ``parallel`` is False and ``submit`` runs ``fn`` at once.
-    Leaving the block cancels what has not started and waits for the rest; the caller's warning
-    filters are restored."""
+    ``thread_map`` or :func:`serial`), ``parallel`` is False and no threads start (the caller
+    runs its work itself). Leaving the block cancels what has not started and waits for the
+    rest; the caller's warning filters are restored."""
 
     def __init__(self, workers: int | None = None) -> None:
         threads = torch.get_num_threads()
@@ -99,13 +99,9 @@ class Lanes:
             self._filters.__exit__(*exc)
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        """``fn(*args)`` in the next free lane (inside the block, where ``parallel``)."""
         if self._pool is None:
-            done: Future = Future()
-            try:
-                done.set_result(fn(*args))
-            except BaseException as err:     # noqa: BLE001 - handed to the caller by result()
-                done.set_exception(err)
-            return done
+            raise RuntimeError("Lanes.submit: no lanes open (outside the block, or not parallel)")
         return self._pool.submit(_in_lane, self.share, fn, args)
 
 

@@ -90,8 +90,8 @@ def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torc
     run = [name for name in names if not name.endswith(SESSION) and name not in skip]
     fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw", behind=behind)))
     pending = [(names.index(n), out) for n, out in fitted.items() if isinstance(out, Future)]
-    outs = [fitted.get(name, NOT_DRAWN) for name in names]
-    outs = [NOT_DRAWN if isinstance(out, Future) else out for out in outs]
+    outs = [NOT_DRAWN if isinstance(out, Future) else out
+            for out in (fitted.get(name, NOT_DRAWN) for name in names)]
     scores, _, decide = scored(fits, names, outs, fit_missing, Xt, V)
     return scores, [(c, future, fit_missing, V, decide) for c, future in pending]
 
