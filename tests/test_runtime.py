@@ -56,6 +56,29 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
         assert seen[-1] == (threading.current_thread().name, 4)
 
 
+def test_after_starts_the_work_once_the_first_is_done_and_passes_on_its_error():
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from torchfill.runtime.threads import after
+
+    gate, order = threading.Event(), []
+    with ThreadPoolExecutor(2) as pool:
+        first = pool.submit(lambda: (gate.wait(5), order.append("first")))
+        second = after(first, lambda: pool.submit(lambda: order.append("second") or 2))
+        third = after(first, lambda: pool.submit(lambda: 1 / 0))
+        assert not second.done()
+        gate.set()
+        assert second.result(5) == 2
+        with pytest.raises(ZeroDivisionError):
+            third.result(5)
+        assert after(first, lambda: pool.submit(lambda: 3)).result(5) == 3     # done: at once
+    assert order == ["first", "second"]
+    closed = after(first, lambda: pool.submit(lambda: 4))          # the pool shut down meanwhile
+    with pytest.raises(RuntimeError):
+        closed.result(5)
+
+
 def test_thread_map_starts_the_costliest_first_and_yields_in_order():
     import threading
     import time

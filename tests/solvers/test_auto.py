@@ -6,6 +6,7 @@ than the best of its candidates, and the error estimate is calibrated (real 3-D 
 """
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
@@ -461,33 +462,69 @@ def test_a_later_window_that_would_try_other_candidates_chooses_for_itself(monke
     assert stages[:2] == ["fit", "draw"] and "tucker_tnn" in solver.scores_
 
 
-def test_tucker_tnn_of_a_later_draw_runs_on_beside_the_next_draws_with_the_same_bits(
+def test_tucker_tnn_of_each_draw_runs_on_beside_the_next_draws_with_the_same_bits(
         recording, monkeypatch):
-    """On a recording with few gaps (several hold-out draws, ``tucker_tnn`` in the second), its
-    second-draw fit runs on in the background while the cheaper candidates make the next draws,
-    and is scored at the end: the fill and the error estimate are those of the draws made one
-    after the other, bit for bit (two threads, whatever an earlier test left)."""
+    """On a recording with few gaps (several hold-out draws, ``tucker_tnn`` in the first two),
+    its fits run on in the background while the cheaper candidates make the next draws (the
+    second after the first, whose ``eps`` it reuses) and are scored at the end: the fill and
+    the error estimate are those of the draws made one after the other, bit for bit (two
+    threads, whatever an earlier test left)."""
     x = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
-    behind, fit_all = [], Fits.fit_all
+    behind, fit_all, attempt, spans = [], Fits.fit_all, Fits.attempt, {}
 
     def spy(self, names, fit_missing, stage="fit", case=None, **kw):
         outs = list(fit_all(self, names, fit_missing, stage, case, **kw))
-        behind.extend(n for n, out in zip(names, outs)
+        behind.extend((stage, n) for n, out in zip(names, outs)
                       if not isinstance(out, (torch.Tensor, Exception)))
         return outs
 
+    def timed(self, name, fit_missing, case=None, stage="fit"):
+        start = time.perf_counter()
+        out = attempt(self, name, fit_missing, case, stage)
+        spans.setdefault((stage, name), (start, time.perf_counter()))
+        return out
+
     monkeypatch.setattr(Fits, "fit_all", spy)
+    monkeypatch.setattr(Fits, "attempt", timed)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out, std = torchfill.fill(x, return_std=True)
-            assert behind == ["tucker_tnn"]
+            assert behind == [("fit", "tucker_tnn"), ("draw", "tucker_tnn")]
+            assert spans[("draw", "tucker_tnn")][0] >= spans[("fit", "tucker_tnn")][1]
             monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)   # round by round
             again, std_again = torchfill.fill(x, return_std=True)
     finally:
         torch.set_num_threads(before)
-    assert behind == ["tucker_tnn"]
+    assert len(behind) == 2
     assert np.array_equal(out.points, again.points, equal_nan=True)
     assert np.array_equal(np.asarray(std), np.asarray(std_again), equal_nan=True)
+
+
+def test_a_first_fit_that_fails_in_the_background_is_dropped_as_one_that_fails_at_once(
+        recording, monkeypatch):
+    """``tucker_tnn`` failing while it runs on behind the first draw: the choice goes on without
+    it, with the fill and estimate of a choice whose rounds run one by one."""
+    from torchfill.solvers.tucker import TuckerTNN
+
+    x = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
+
+    def fail(self, *args, **kwargs):
+        raise ValueError("non-finite fill")
+    monkeypatch.setattr(TuckerTNN, "fit_transform", fail)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            solver = get_solver("auto")
+            out = solver.fit_transform(torch.as_tensor(x.points))
+            monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)
+            again = get_solver("auto").fit_transform(torch.as_tensor(x.points))
+    finally:
+        torch.set_num_threads(before)
+    assert solver.dropped_ == {"tucker_tnn": "non-finite fill"}
+    assert "tucker_tnn" not in solver.scores_
+    assert torch.equal(out, again)

@@ -105,6 +105,24 @@ class Lanes:
         return self._pool.submit(_in_lane, self.share, fn, args)
 
 
+def after(first: Future, start: Callable[[], Future]) -> Future:
+    """A :class:`~concurrent.futures.Future` of the work ``start()`` submits once ``first`` is
+    done (at once where it is): its result or error."""
+    out: Future = Future()
+
+    def relay(done: Future) -> None:
+        err = done.exception()
+        out.set_exception(err) if err is not None else out.set_result(done.result())
+
+    def go(_: Future) -> None:
+        try:
+            start().add_done_callback(relay)
+        except RuntimeError as err:           # the lanes closed meanwhile (the fill failed)
+            out.set_exception(err)
+    first.add_done_callback(go)
+    return out
+
+
 def _in_lane(share: int, fn: Callable[..., Any], args: tuple) -> Any:
     _INSIDE.active = True
     torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)

@@ -35,13 +35,15 @@ constraints and model averaging", PLoS ONE 13(7): e0199744 (2018).
 """
 from __future__ import annotations
 
+from concurrent.futures import Future
+
 import torch
 
 from .. import ops
 from .base import OneShotSolver, Param, available, register
 from .selection import draws
-from .selection.candidates import (DEFAULT_CANDIDATES, PARTIAL, SESSION, Fits,  # noqa: F401
-                                   default_names)
+from .selection.candidates import (DEFAULT_CANDIDATES, INTERIOR, PARTIAL, SESSION,  # noqa: F401
+                                   Fits, default_names)
 from .selection.cross import cross_holdout
 from .selection.error_model import fit_std, sample_features
 from .selection.kinds import N_BASE, N_KINDS, kind_name, sample_kinds
@@ -192,13 +194,17 @@ class Auto(OneShotSolver):
         self._combine(names, fills, donor, W, mse, V, seen)
         return names
 
-    def _run(self, names: list[str], fit_missing: Tensor) -> tuple[list[str], Tensor]:
-        """The candidates ``names`` fitted with ``fit_missing`` hidden (:meth:`Fits.run`)."""
-        names, fills = self._fits.run(names, fit_missing, self.dropped_)
+    def _run(self, names: list[str], fit_missing: Tensor, behind: tuple = ()
+             ) -> tuple[list[str], Tensor, dict]:
+        """The candidates ``names`` fitted with ``fit_missing`` hidden (:meth:`Fits.run`), with
+        those still running in ``behind`` NaN and their futures by index."""
+        names, fills = self._fits.run(names, fit_missing, self.dropped_, behind)
         if not names:
             raise ValueError(f"{self.name}: every candidate failed on this recording: "
                              + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
-        return names, torch.stack(fills)
+        running = {c: f for c, f in enumerate(fills) if isinstance(f, Future)}
+        nan = self.M_.new_full((*fit_missing.shape, self.M_.numel() // fit_missing.numel()), torch.nan)
+        return names, torch.stack([nan if c in running else f for c, f in enumerate(fills)]), running
 
     def _choose(self, seen: Tensor) -> tuple[list[str], Tensor, Tensor, Tensor, Tensor, Tensor]:
         """Steps 1-4 of the module notes: the hold-out ``V``, every candidate fitted with it
@@ -209,13 +215,18 @@ class Auto(OneShotSolver):
         error (C,) and ``V``."""
         V = draws.holdout(seen, self.generator_)
         fit_missing = ~seen | V
-        names, fills = self._run(self.tried_, fit_missing)
-        fills, donor = self._fits.constrain(fills, fit_missing)    # donor: rigid-donor samples
+        behind = INTERIOR if draws.certain(V, self.draws, self.min_gaps) else ()
+        names, fills, running = self._run(self.tried_, fit_missing, behind)
+        done = [c for c in range(len(names)) if c not in running]
+        fills[done], donor = self._fits.constrain(fills[done], fit_missing)   # donor: rigid's
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         kinds = sample_kinds([n in PARTIAL for n in names], fills, fit_missing, Xt)[-1]
         first, err2 = draws.first_scores(fills, donor, kinds, Xt, V)
         pooled = draws.pooled(first, self._fits, names, seen, V, self.generator_, self.draws,
                               self.min_gaps)
+        names, fills, err2, pooled = draws.settle_first(self._fits, names, fills, err2, pooled,
+                                                        running, fit_missing, V, donor,
+                                                        self.dropped_)
         W = self._weights(names, seen, pooled, fills.dtype)
         if self.refit and bool(V.any()):
             w = W[kinds].permute(2, 0, 1)                           # (C, T, J)

@@ -6,12 +6,13 @@ from __future__ import annotations
 import threading
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future
 
 import torch
 
 from ... import ops
 from ...runtime.memory import trim_heap
-from ...runtime.threads import Lanes, thread_map
+from ...runtime.threads import Lanes, after, thread_map
 from ..base import available, get_solver
 from .kinds import interior_share
 
@@ -108,6 +109,7 @@ class Fits:
         self.carried, self.report = carried, report
         self.warm: dict[str, tuple] = {}        # each candidate's first fit's warm_start()
         self.lanes: Lanes | None = None         # worker threads kept open (:meth:`open_lanes`)
+        self.first: dict[str, Future] = {}      # first fits left running (``behind``)
 
     def open_lanes(self) -> Lanes:
         """Worker threads for the fits of this recording (one on a GPU), kept open across the
@@ -176,7 +178,9 @@ class Fits:
         reported: ``{stage}=k``, ``{stage}s=n`` (``fit``/``fits`` on the hold-out,
         ``refit``/``refits``; the step's own record counts the ``candidates`` that ran). In the
         lanes (:meth:`in_lanes`), the names in ``behind`` are not waited for: their place holds
-        the :class:`~concurrent.futures.Future` of their fit, which runs on in the background."""
+        the :class:`~concurrent.futures.Future` of their fit, which runs on in the background; a
+        later fit of a candidate whose first fit runs so starts when that ends (it reads what the
+        first carries, :meth:`Solver.carry`)."""
         lock, done = threading.Lock(), [0]
 
         def attempt(name: str):
@@ -188,10 +192,19 @@ class Fits:
         if not self.in_lanes(len(names)):
             workers = None if self.M.device.type == "cpu" else 1
             return thread_map(attempt, names, workers, cost=cost)
-        futures = {i: self.lanes.submit(attempt, names[i])
+        futures = {i: self._submit(attempt, names[i])
                    for i in sorted(range(len(names)), key=lambda i: -cost(names[i]))}
+        if stage == "fit" and case is None:
+            self.first.update({names[i]: f for i, f in futures.items() if names[i] in behind})
         return (futures.pop(i) if names[i] in behind else futures.pop(i).result()
                 for i in range(len(names)))
+
+    def _submit(self, attempt: Callable, name: str) -> Future:
+        """``attempt(name)`` in the next free lane, once the candidate's first fit has ended."""
+        first = self.first.get(name)
+        if first is None or first.done():
+            return self.lanes.submit(attempt, name)
+        return after(first, lambda: self.lanes.submit(attempt, name))
 
     def constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
         """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data
@@ -207,12 +220,14 @@ class Fits:
         trim_heap(self.M.element_size() * self.M.numel())
         return out
 
-    def run(self, names: list[str], fit_missing: Tensor, dropped: dict[str, str]
-            ) -> tuple[list[str], list[Tensor]]:
+    def run(self, names: list[str], fit_missing: Tensor, dropped: dict[str, str],
+            behind: tuple = ()) -> tuple[list[str], list[Tensor | Future]]:
         """Each candidate of ``names`` fitted once with ``fit_missing`` hidden: the names of those
-        that did not fail (the others' errors go to ``dropped``) and their fills (T, J, 3)."""
+        that did not fail (the others' errors go to ``dropped``) and their fills (T, J, 3), the
+        :class:`~concurrent.futures.Future` of those in ``behind`` still running (see
+        :meth:`fit_all`)."""
         kept, fills = [], []
-        for name, out in zip(names, self.fit_all(names, fit_missing)):
+        for name, out in zip(names, self.fit_all(names, fit_missing, behind=behind)):
             if isinstance(out, Exception):
                 dropped[name] = str(out)
                 continue
