@@ -21,6 +21,24 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = data_dir(REPO_ROOT)
 
 
+@pytest.fixture(autouse=True)
+def _thread_settings():
+    """Each test ends with torch's thread count and ``OMP_NUM_THREADS`` as it began: the CLI run
+    in-process sets both from the machine's load (``torchfill.cli``), which would leave the tests
+    after it on another count (and so on other last bits) than when run alone."""
+    import os
+
+    import torch
+
+    threads, env = torch.get_num_threads(), os.environ.get("OMP_NUM_THREADS")
+    yield
+    if os.environ.get("OMP_NUM_THREADS") != env:
+        os.environ.pop("OMP_NUM_THREADS", None) if env is None else os.environ.update(
+            OMP_NUM_THREADS=env)
+    if torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     """The shared data folder; skips the test when it is absent."""

@@ -125,7 +125,9 @@ def after(first: Future, start: Callable[[], Future]) -> Future:
 
 def _in_lane(share: int, fn: Callable[..., Any], args: tuple) -> Any:
     _INSIDE.active = True
-    torch.get_num_threads()          # torch's lazy per-thread start first (it would reset them)
+    # torch's lazy per-thread start first (it would reset them to torch's own count), through
+    # torch's own function: a caller's stand-in for torch.get_num_threads would skip it
+    torch._C.get_num_threads()
     for set_threads in (_omp_set_num_threads(), _mkl_set_num_threads_local()):
         if set_threads is not None:  # this thread's OpenMP team and MKL count only
             set_threads(share)
