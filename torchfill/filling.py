@@ -443,8 +443,8 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
     seen = points[~missing]
     if seen.numel() == 0:
         return torch.zeros_like(missing)
-    med = seen.median()
-    spread = max(float((seen - med).abs().median()), 1e-3 * abs(float(med)), 1e-300)
+    med = _lower_median(seen)
+    spread = max(float(_lower_median((seen - med).abs())), 1e-3 * abs(float(med)), 1e-300)
     huge = ((points - med).abs() > HUGE_SPREADS * spread).any(dim=2) & ~missing
     if bool(huge.any()):
         t, j = (int(i) for i in torch.nonzero(huge)[0])
@@ -453,6 +453,16 @@ def _huge(points: torch.Tensor, missing: torch.Tensor) -> torch.Tensor:
                       f"marker {j}) kept as they are but not used for the fit",
                       UserWarning, stacklevel=5)
     return huge
+
+
+def _lower_median(x: torch.Tensor) -> torch.Tensor:
+    """``x.median()`` (the lower middle value of an even count) by a partial sort on the CPU:
+    one value, not a sort (a fifth of the time at 3 000 x 41 x 3)."""
+    if x.device.type != "cpu":
+        return x.median()
+    flat = x.detach().reshape(-1).numpy()
+    k = (flat.size - 1) // 2
+    return torch.as_tensor(np.partition(flat, k)[k], dtype=x.dtype)
 
 
 def _segment_indices(segments, data, points: torch.Tensor, unfit: torch.Tensor) -> dict:
