@@ -528,3 +528,13 @@ def test_a_first_fit_that_fails_in_the_background_is_dropped_as_one_that_fails_a
     assert solver.dropped_ == {"tucker_tnn": "non-finite fill"}
     assert "tucker_tnn" not in solver.scores_
     assert torch.equal(out, again)
+    monkeypatch.undo()
+    monkeypatch.setattr(TuckerTNN, "fit_transform", fail)
+    from torchfill.solvers.interp import Pchip
+    monkeypatch.setattr(Pchip, "fit_transform", fail)
+    torch.set_num_threads(2)
+    try:
+        with pytest.raises(ValueError, match="every candidate failed"):   # the last one behind
+            get_solver("auto", candidates=["pchip", "tucker_tnn"]).fit(torch.as_tensor(x.points))
+    finally:
+        torch.set_num_threads(before)

@@ -199,12 +199,18 @@ class Auto(OneShotSolver):
         """The candidates ``names`` fitted with ``fit_missing`` hidden (:meth:`Fits.run`), with
         those still running in ``behind`` NaN and their futures by index."""
         names, fills = self._fits.run(names, fit_missing, self.dropped_, behind)
+        self._some_left(names)
+        running = {c: f for c, f in enumerate(fills) if isinstance(f, Future)}
+        nan = self.M_.new_full((*fit_missing.shape, self.M_.numel() // fit_missing.numel()),
+                               torch.nan)
+        fills = [nan if c in running else f for c, f in enumerate(fills)]
+        return names, torch.stack(fills), running
+
+    def _some_left(self, names: list[str]) -> None:
+        """Refuse a recording on which every candidate failed, naming each one's error."""
         if not names:
             raise ValueError(f"{self.name}: every candidate failed on this recording: "
                              + "; ".join(f"{k}: {v}" for k, v in self.dropped_.items()))
-        running = {c: f for c, f in enumerate(fills) if isinstance(f, Future)}
-        nan = self.M_.new_full((*fit_missing.shape, self.M_.numel() // fit_missing.numel()), torch.nan)
-        return names, torch.stack([nan if c in running else f for c, f in enumerate(fills)]), running
 
     def _choose(self, seen: Tensor) -> tuple[list[str], Tensor, Tensor, Tensor, Tensor, Tensor]:
         """Steps 1-4 of the module notes: the hold-out ``V``, every candidate fitted with it
@@ -218,7 +224,7 @@ class Auto(OneShotSolver):
         behind = INTERIOR if draws.certain(V, self.draws, self.min_gaps) else ()
         names, fills, running = self._run(self.tried_, fit_missing, behind)
         done = [c for c in range(len(names)) if c not in running]
-        fills[done], donor = self._fits.constrain(fills[done], fit_missing)   # donor: rigid's
+        fills[done], donor = self._fits.constrain(fills[done], fit_missing)  # rigid-donor samples
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         kinds = sample_kinds([n in PARTIAL for n in names], fills, fit_missing, Xt)[-1]
         first, err2 = draws.first_scores(fills, donor, kinds, Xt, V)
@@ -227,6 +233,7 @@ class Auto(OneShotSolver):
         names, fills, err2, pooled = draws.settle_first(self._fits, names, fills, err2, pooled,
                                                         running, fit_missing, V, donor,
                                                         self.dropped_)
+        self._some_left(names)
         W = self._weights(names, seen, pooled, fills.dtype)
         if self.refit and bool(V.any()):
             w = W[kinds].permute(2, 0, 1)                           # (C, T, J)
