@@ -467,8 +467,7 @@ def test_tucker_tnn_of_each_draw_runs_on_beside_the_next_draws_with_the_same_bit
     """On a recording with few gaps (several hold-out draws, ``tucker_tnn`` in the first two),
     its fits run on in the background while the cheaper candidates make the next draws (the
     second after the first, whose ``eps`` it reuses) and are scored at the end: the fill and
-    the error estimate are those of the draws made one after the other, bit for bit (two
-    threads, whatever an earlier test left)."""
+    the error estimate are those of the draws made one after the other, bit for bit."""
     x = torchfill.read(recording("ktk_tennis_serve_nan.c3d"))
     behind, fit_all, attempt, spans = [], Fits.fit_all, Fits.attempt, {}
 
@@ -486,18 +485,14 @@ def test_tucker_tnn_of_each_draw_runs_on_beside_the_next_draws_with_the_same_bit
 
     monkeypatch.setattr(Fits, "fit_all", spy)
     monkeypatch.setattr(Fits, "attempt", timed)
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            out, std = torchfill.fill(x, return_std=True)
-            assert behind == [("fit", "tucker_tnn"), ("draw", "tucker_tnn")]
-            assert spans[("draw", "tucker_tnn")][0] >= spans[("fit", "tucker_tnn")][1]
-            monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)   # round by round
-            again, std_again = torchfill.fill(x, return_std=True)
-    finally:
-        torch.set_num_threads(before)
+    torch.set_num_threads(2)                # two lanes (the tests' fixture restores the count)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out, std = torchfill.fill(x, return_std=True)
+        assert behind == [("fit", "tucker_tnn"), ("draw", "tucker_tnn")]
+        assert spans[("draw", "tucker_tnn")][0] >= spans[("fit", "tucker_tnn")][1]
+        monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)   # round by round
+        again, std_again = torchfill.fill(x, return_std=True)
     assert len(behind) == 2
     assert np.array_equal(out.points, again.points, equal_nan=True)
     assert np.array_equal(np.asarray(std), np.asarray(std_again), equal_nan=True)
@@ -514,17 +509,13 @@ def test_a_first_fit_that_fails_in_the_background_is_dropped_as_one_that_fails_a
     def fail(self, *args, **kwargs):
         raise ValueError("non-finite fill")
     monkeypatch.setattr(TuckerTNN, "fit_transform", fail)
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            solver = get_solver("auto")
-            out = solver.fit_transform(torch.as_tensor(x.points))
-            monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)
-            again = get_solver("auto").fit_transform(torch.as_tensor(x.points))
-    finally:
-        torch.set_num_threads(before)
+    torch.set_num_threads(2)                # two lanes (the tests' fixture restores the count)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        solver = get_solver("auto")
+        out = solver.fit_transform(torch.as_tensor(x.points))
+        monkeypatch.setattr(Fits, "in_lanes", lambda self, size: False)
+        again = get_solver("auto").fit_transform(torch.as_tensor(x.points))
     assert solver.dropped_ == {"tucker_tnn": "non-finite fill"}
     assert "tucker_tnn" not in solver.scores_
     assert torch.equal(out, again)
@@ -532,9 +523,5 @@ def test_a_first_fit_that_fails_in_the_background_is_dropped_as_one_that_fails_a
     monkeypatch.setattr(TuckerTNN, "fit_transform", fail)
     from torchfill.solvers.interp import Pchip
     monkeypatch.setattr(Pchip, "fit_transform", fail)
-    torch.set_num_threads(2)
-    try:
-        with pytest.raises(ValueError, match="every candidate failed"):   # the last one behind
-            get_solver("auto", candidates=["pchip", "tucker_tnn"]).fit(torch.as_tensor(x.points))
-    finally:
-        torch.set_num_threads(before)
+    with pytest.raises(ValueError, match="every candidate failed"):   # the last one behind
+        get_solver("auto", candidates=["pchip", "tucker_tnn"]).fit(torch.as_tensor(x.points))
