@@ -56,25 +56,33 @@ def test_thread_map_keeps_order_and_shares_threads_per_worker_only():
         assert seen[-1] == (threading.current_thread().name, 4)
 
 
-def test_after_starts_the_work_once_the_first_is_done_and_passes_on_its_error():
+def test_after_runs_the_work_next_in_the_first_ones_lane_and_passes_on_its_error():
     import threading
-    from concurrent.futures import ThreadPoolExecutor
 
-    from torchfill.runtime.threads import after
+    from torchfill.runtime.threads import Lanes, after
 
     gate, order = threading.Event(), []
-    with ThreadPoolExecutor(2) as pool:
-        first = pool.submit(lambda: (gate.wait(5), order.append("first")))
-        second = after(first, lambda: pool.submit(lambda: order.append("second") or 2))
-        third = after(first, lambda: pool.submit(lambda: 1 / 0))
+
+    def name(tag):
+        order.append((tag, threading.current_thread().name))
+        return tag
+
+    with _threads(2), Lanes(2) as lanes:
+        first = lanes.submit(lambda: (gate.wait(5), name("first"))[1])
+        second = after(first, lanes, name, "second")
+        failing = after(first, lanes, lambda: 1 / 0)
+        queued = [lanes.submit(name, "queued") for _ in range(2)]      # the other lane's work
         assert not second.done()
         gate.set()
-        assert second.result(5) == 2
+        assert second.result(5) == "second"
         with pytest.raises(ZeroDivisionError):
-            third.result(5)
-        assert after(first, lambda: pool.submit(lambda: 3)).result(5) == 3     # done: at once
-    assert order == ["first", "second"]
-    closed = after(first, lambda: pool.submit(lambda: 4))          # the pool shut down meanwhile
+            failing.result(5)
+        [q.result(5) for q in queued]
+        assert after(first, lanes, name, "done").result(5) == "done"   # first done: a free lane
+    lane = dict(order)
+    assert lane["second"] == lane["first"]          # next in the lane that ran the first
+    assert order.index(("second", lane["first"])) == order.index(("first", lane["first"])) + 1
+    closed = after(first, lanes, name, "late")      # the lanes closed meanwhile
     with pytest.raises(RuntimeError):
         closed.result(5)
 

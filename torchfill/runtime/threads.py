@@ -105,18 +105,28 @@ class Lanes:
         return self._pool.submit(_in_lane, self.share, fn, args)
 
 
-def after(first: Future, start: Callable[[], Future]) -> Future:
-    """A :class:`~concurrent.futures.Future` of the work ``start()`` submits once ``first`` is
-    done (at once where it is): its result or error."""
+def after(first: Future, lanes: Lanes, fn: Callable[..., Any], *args: Any) -> Future:
+    """A :class:`~concurrent.futures.Future` of ``fn(*args)`` run as soon as ``first`` is done:
+    next in the lane that ran ``first`` (ahead of what is queued), or in the next free lane of
+    ``lanes`` where ``first`` was done already."""
     out: Future = Future()
+
+    def run() -> None:
+        try:
+            out.set_result(fn(*args))
+        except BaseException as err:          # noqa: BLE001 -- the future carries it
+            out.set_exception(err)
 
     def relay(done: Future) -> None:
         err = done.exception()
         out.set_exception(err) if err is not None else out.set_result(done.result())
 
     def go(_: Future) -> None:
+        if getattr(_INSIDE, "active", False):  # the lane's own thread, its share already set
+            run()
+            return
         try:
-            start().add_done_callback(relay)
+            lanes.submit(fn, *args).add_done_callback(relay)
         except RuntimeError as err:           # the lanes closed meanwhile (the fill failed)
             out.set_exception(err)
     first.add_done_callback(go)

@@ -221,8 +221,7 @@ class Auto(OneShotSolver):
         error (C,) and ``V``."""
         V = draws.holdout(seen, self.generator_)
         fit_missing = ~seen | V
-        behind = INTERIOR if draws.certain(V, self.draws, self.min_gaps) else ()
-        names, fills, running = self._run(self.tried_, fit_missing, behind)
+        names, fills, running = self._run(self.tried_, fit_missing, INTERIOR)
         done = [c for c in range(len(names)) if c not in running]
         fills[done], donor = self._fits.constrain(fills[done], fit_missing)  # rigid-donor samples
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)

@@ -200,11 +200,12 @@ class Fits:
                 for i in range(len(names)))
 
     def _submit(self, attempt: Callable, name: str) -> Future:
-        """``attempt(name)`` in the next free lane, once the candidate's first fit has ended."""
+        """``attempt(name)`` in the next free lane, or, while the candidate's first fit runs, in
+        its lane as soon as that ends."""
         first = self.first.get(name)
         if first is None or first.done():
             return self.lanes.submit(attempt, name)
-        return after(first, lambda: self.lanes.submit(attempt, name))
+        return after(first, self.lanes, attempt, name)
 
     def constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
         """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data

@@ -112,11 +112,12 @@ def settle(fits: Fits, err2: Tensor, pending: list) -> None:
 def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pooled: tuple,
                  running: dict[int, Future], missing: Tensor, V: Tensor, donor: Tensor,
                  dropped: dict[str, str]) -> tuple[list[str], Tensor, Tensor, tuple]:
-    """The first draw's fits left running (``running``: candidate index -> future, see
-    :func:`certain`), each through the post-step into its row of the draw's ``fills`` (C, T, J,
-    D) and squared errors ``err2`` (C, N_V) and of the ``pooled`` errors (the first draw's
-    columns come first), as :func:`first_scores` scores them. A failed one leaves every row
-    (its error goes to ``dropped``)."""
+    """The first draw's fits left running (``running``: candidate index -> future; the
+    ``INTERIOR`` ones run on while the others are scored and the next draws made, if any),
+    each through the post-step into its row of the draw's ``fills`` (C, T, J, D) and squared
+    errors ``err2`` (C, N_V) and of the ``pooled`` errors (the first draw's columns come
+    first), as :func:`first_scores` scores them. A failed one leaves every row (its error goes
+    to ``dropped``)."""
     Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
     decide = ~donor[V]
     E, kinds, gaps = pooled
@@ -134,17 +135,6 @@ def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pool
         return names, fills, err2, pooled
     keep = [c for c in range(len(names)) if c not in failed]
     return [names[c] for c in keep], fills[keep], err2[keep], (E[keep], kinds, gaps)
-
-
-def certain(V: Tensor, draws: int, min_gaps: int) -> bool:
-    """Whether :func:`pooled` makes a second draw whatever the candidates' fills, seen from the
-    first draw's held-out samples ``V`` alone (its scored gaps are some of them): then the
-    first draw's costly fits can run on beside the next draws."""
-    ids = gap_index(V)[V]
-    if min_gaps == 0:
-        return draws >= 2
-    return windows(V, ids) < ENOUGH_WINDOWS and (
-        draws >= 2 or int(ids.unique().numel()) < min_gaps)
 
 
 def windows(V: Tensor, gap_ids: Tensor) -> int:
