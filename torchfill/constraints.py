@@ -582,7 +582,7 @@ def observed_limits(F, observed) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
 
 _KEPT_LIMITS = Memo(entries=4)
 #: The rigid pairs of :func:`constrain_candidates`'s observed samples: ``auto`` constrains a fit
-#: that ran on in the background on its own, after the others of its round (0.07 s at 3000 x 41).
+#: that ran on in the background on its own, after the others of its round (docs/speed.md).
 _KEPT_PAIRS = Memo(entries=4)
 
 

@@ -100,13 +100,19 @@ def settle(fits: Fits, err2: Tensor, pending: list) -> None:
     """The fits :func:`draw` left running, each through the post-step and scored into its row
     of that draw's squared errors ``err2`` (C, N) as :func:`scored` scores it (a failed one
     stays NaN)."""
-    Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
     for c, future, missing, V, decide in pending:
         out = future.result()
         if isinstance(out, Exception) or not bool(torch.isfinite(out).any()):
             continue
-        F = fits.constrain(out.to(fits.M.dtype)[None], missing)[0]
-        err2[c] = ((F - Xt) ** 2).mean(dim=3)[:, V][0][decide]
+        err2[c] = alone(fits, out, missing, V)[1][decide]
+
+
+def alone(fits: Fits, out: Tensor, missing: Tensor, V: Tensor) -> tuple[Tensor, Tensor]:
+    """One candidate's fill ``out`` (T, J, D) with ``missing`` hidden through the post-step, and
+    its squared errors on the held-out samples ``V`` (N_V,), as :func:`scored` scores it."""
+    Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
+    F = fits.constrain(out.to(fits.M.dtype)[None], missing)[0][0]
+    return F, ((F - Xt) ** 2).mean(dim=2)[V]
 
 
 def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pooled: tuple,
@@ -118,7 +124,6 @@ def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pool
     errors ``err2`` (C, N_V) and of the ``pooled`` errors (the first draw's columns come
     first), as :func:`first_scores` scores them. A failed one leaves every row (its error goes
     to ``dropped``)."""
-    Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
     decide = ~donor[V]
     E, kinds, gaps = pooled
     failed = []
@@ -128,8 +133,7 @@ def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pool
             dropped[names[c]] = str(out)
             failed.append(c)
             continue
-        fills[c] = fits.constrain(out.to(fits.M.dtype)[None], missing)[0][0]
-        err2[c] = ((fills[c] - Xt) ** 2).mean(dim=2)[V]
+        fills[c], err2[c] = alone(fits, out, missing, V)
         E[c, :int(decide.sum())] = err2[c][decide]
     if not failed:
         return names, fills, err2, pooled
