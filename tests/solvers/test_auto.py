@@ -103,6 +103,32 @@ def test_cli_writes_std_csv(tmp_path):
     assert np.isfinite(S[missing]).all() and np.isnan(S[~missing]).all()
 
 
+def test_the_pma_family_averages_its_hold_out_fit_and_refit_on_trial_end_kinds(monkeypatch):
+    """On the samples of the trial-end kinds a candidate of ``END_AVERAGE`` keeps the mean of its
+    hold-out fill and its refit (two fills from different observed samples; their trial-end
+    fills swing either way); inside, and for the other candidates, the refit replaces it."""
+    T, J = 20, 3
+    M = torch.zeros(T, J, 3, dtype=torch.float64)
+    gaps = torch.zeros(T, J, dtype=torch.bool)
+    gaps[:5, 0] = gaps[8:12, 1] = True                    # one at the trial start, one inside
+    end = torch.zeros_like(gaps)
+    end[:5, 0] = True
+    fits = Fits(M, torch.zeros(3, dtype=torch.float64), torch.ones((), dtype=torch.float64), {},
+                0, None, None, {}, lambda r: None)
+    names = ["pma", "li", "lgrnn", "pchip"]
+    held = torch.stack([torch.full((T, J, 3), float(c + 1), dtype=torch.float64)
+                        for c in range(len(names))])
+    monkeypatch.setattr(Fits, "fit_all", lambda self, names, *a, **k: [
+        torch.full((T, J, 3), 10.0 * (c + 1), dtype=torch.float64) for c in range(len(names))])
+    out, _ = fits.refit(names, held, torch.ones(len(names), T, J, dtype=torch.float64), gaps, end)
+    for c, name in enumerate(names):
+        refit, kept = 10.0 * (c + 1), float(c + 1)
+        at_end = (refit + kept) / 2 if name in ("pma", "li", "lgrnn") else refit
+        assert torch.all(out[c][end] == at_end), name
+        assert torch.all(out[c][gaps & ~end] == refit), name
+        assert torch.all(out[c][~gaps] == kept), name
+
+
 def test_progress_reports_every_candidate_fit_and_refit():
     """auto's one step takes as long as all its candidates: the callback hears of each fit."""
     seen = []

@@ -236,7 +236,7 @@ class Auto(OneShotSolver):
         W = self._weights(names, seen, pooled, fills.dtype)
         if self.refit and bool(V.any()):
             w = W[kinds].permute(2, 0, 1)                           # (C, T, J)
-            fills, real_donor = self._fits.refit(names, fills, w, ~seen)
+            fills, real_donor = self._fits.refit(names, fills, w, ~seen, kinds % 2 == 1)
             donor = torch.where(V, donor, real_donor)
         self.scores_ = ({n: float(e.nanmean().sqrt()) for n, e in zip(names, err2)}
                         if err2.numel() else {})

@@ -49,6 +49,11 @@ ALONE = ("lgrnn", "pca_gloersen")
 #: side by side (:func:`torchfill.runtime.threads.thread_map`'s ``cost``); a ``+session`` twin as its method.
 COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3,
         "pca_gloersen": 0.3}
+#: Candidates whose fill of a trial-end gap swings with the samples they see (the local models'
+#: reference triples and filling order; their hold-out fit and refit differ up to twofold either
+#: way): on the trial-end kinds their final fill is the mean of the two (measured:
+#: experiments/results/speed.md, the default's rounds).
+END_AVERAGE = ("li", "lgrnn", "pma")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 
@@ -236,18 +241,22 @@ class Fits:
             fills.append(out)
         return kept, fills
 
-    def refit(self, names: list[str], fills: Tensor, w: Tensor,
-              gaps: Tensor) -> tuple[Tensor, Tensor]:
+    def refit(self, names: list[str], fills: Tensor, w: Tensor, gaps: Tensor,
+              end: Tensor) -> tuple[Tensor, Tensor]:
         """Fills of the real ``gaps`` from the candidates that carry weight there (``w`` (C, T,
         J)), refitted on all observed samples (the hold-out fit stays where the refit fails),
-        constrained like the hold-out fills; and the (T, J) samples that rigid donors fill."""
+        constrained like the hold-out fills; and the (T, J) samples that rigid donors fill. On
+        the samples of the trial-end kinds (``end``, (T, J)) a candidate of ``END_AVERAGE`` takes
+        the mean of its refit and its hold-out fill ``fills``."""
         fills = fills.clone()
         done = [c for c in range(len(names)) if bool((w[c][gaps] > 0).any())]
         for c, out in zip(list(done), self.fit_all([names[c] for c in done], gaps, "refit")):
             if isinstance(out, Exception):
                 done.remove(c)
-            else:
-                fills[c] = torch.where(gaps[..., None], out, fills[c])
+                continue
+            if names[c] in END_AVERAGE:
+                out = torch.where(end[..., None], 0.5 * (out + fills[c]), out)
+            fills[c] = torch.where(gaps[..., None], out, fills[c])
         Xt = self.M.reshape(fills.shape[1:])
         seen = torch.where(gaps[..., None], fills[done], Xt)   # held-out samples as observed
         refits, donor = self.constrain(seen, gaps)
