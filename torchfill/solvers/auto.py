@@ -22,7 +22,8 @@ experiments/results/auto.md and docs/real-gaps.md:
    kind also weighs the cross-trial hold-out (:mod:`.selection.cross`).
 4. The candidates that carry weight on a real gap are refitted on every observed sample
    (``refit``), each reusing what its hold-out fit chose (:meth:`Solver.carry`), and the real
-   gaps get the weighted average of the refits.
+   gaps get the weighted average of the refits; on the trial-end kinds the PMA family's
+   (``END_AVERAGE``) is the mean of its refit and its hold-out fill.
 5. The error estimate ``std_`` (T, J): :mod:`.selection.error_model`.
 6. A long recording's later windows (:mod:`torchfill.windows`) take the first window's choice
    (:meth:`Auto.carry`, the ``choice`` parameter): they fit only the candidates with weight, once,

@@ -52,7 +52,7 @@ COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3
 #: Candidates whose fill of a trial-end gap swings with the samples they see (the local models'
 #: reference triples and filling order; their hold-out fit and refit differ up to twofold either
 #: way): on the trial-end kinds their final fill is the mean of the two (measured:
-#: experiments/results/speed.md, the default's rounds).
+#: experiments/results/auto.md).
 END_AVERAGE = ("li", "lgrnn", "pma")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
