@@ -41,7 +41,7 @@ def test_verdict_names_are_the_qc_verdicts():
 
 
 @pytest.mark.parametrize("name", ["c3dorg_s04_sub_labels.c3d",
-                                  pytest.param("c3dorg_s26_walking_hybrid_1_1.c3d",
+                                  pytest.param("c3dorg_s26_walking_hybrid_1_2.c3d",
                                                marks=pytest.mark.slow)])
 def test_kept_rejected_fills_are_marked_in_the_file_and_read_as_data(name, recording, tmp_path):
     """Write-back of the default's fill with its verdicts: read back, each filled sample carries
