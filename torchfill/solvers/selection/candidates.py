@@ -49,10 +49,8 @@ ALONE = ("lgrnn", "pca_gloersen")
 #: side by side (:func:`torchfill.runtime.threads.thread_map`'s ``cost``); a ``+session`` twin as its method.
 COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3,
         "pca_gloersen": 0.3}
-#: Candidates whose fill of a trial-end gap swings with the samples they see (the local models'
-#: reference triples and filling order; their hold-out fit and refit differ up to twofold either
-#: way): on the trial-end kinds their final fill is the mean of the two (measured:
-#: experiments/results/auto.md).
+#: Candidates whose trial-end fills swing with the samples they see: there the final fill is the
+#: mean of their hold-out fit and refit (experiments/results/auto.md).
 END_AVERAGE = ("li", "lgrnn", "pma")
 #: Errors that drop a candidate for this recording instead of failing the fill.
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
