@@ -43,6 +43,7 @@ Observed samples are never changed.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -627,36 +628,60 @@ def constrain_candidates(fills: torch.Tensor, missing: torch.Tensor, segments=No
     (no extrapolation limit); ``segments``: as :func:`constrain` takes them (default: found from
     the data). Returns the constrained fills (a candidate's own value where the post-step left
     NaN) and the (T, J) samples that rigid donors fill: those depend on the observed samples only,
-    so the rigid pairs and donors are found once for all candidates, and the candidates are
-    constrained in threads (numpy lets go of the GIL for most of it); so are the step limit and
-    the volume. ``fill()`` passes this function to ``auto`` as its ``post`` fit data.
+    so the rigid pairs and donors are found once for all candidates (:func:`prepare_candidates`),
+    and the candidates are constrained in threads (numpy lets go of the GIL for most of it).
     """
     from .runtime.threads import thread_map
 
-    donor = torch.zeros_like(missing)
     if fills.shape[0] == 0:
-        return fills, donor
+        return fills, torch.zeros_like(missing)
+    one, donor = prepare_candidates(fills[0], missing, segments)
+    done = list(thread_map(one, fills))
+    return torch.stack(done), donor
+
+
+def prepare_candidates(observed: torch.Tensor, missing: torch.Tensor, segments=None
+                       ) -> tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor]:
+    """What :func:`constrain_candidates` shares between the candidates, made once from the
+    samples of ``observed`` (T, J, D) outside ``missing`` (the rigid pairs and donors, the step
+    limit and the volume): ``(one, donor)``, ``one(F)`` a candidate's fill ``F`` (T, J, D)
+    through the post-step (its own value where that left NaN) and ``donor`` the (T, J) samples
+    rigid donors fill. ``auto`` constrains each candidate as its fit ends."""
     miss = missing.cpu().numpy()
     pairs = donors = None
-    X = torch.where(missing[..., None], float("nan"), fills[0]).cpu().numpy()
+    X = torch.where(missing[..., None], float("nan"), observed).cpu().numpy()
     seen = ~miss & _finite(X)
-    if fills.shape[-1] == 3:
+    donor = torch.zeros_like(missing)
+    if X.shape[-1] == 3:
         pairs = _KEPT_PAIRS(lambda: rigid_pairs(X, seen), X[seen], seen)
         donors = rigid_donors(X, seen, pairs, segments)
+        if miss.any() and seen.any():               # as constrain() reports it
+            donor = torch.as_tensor(donors[1] & miss, device=missing.device)
     limits = observed_limits(X, seen)           # the same observed samples in every fill
+    dtype = torch.empty(0, dtype=observed.dtype).numpy().dtype
 
-    dtype = torch.empty(0, dtype=fills.dtype).numpy().dtype
-
-    def one(F: torch.Tensor):
+    def one(F: torch.Tensor) -> torch.Tensor:
         own = F.cpu().numpy()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            G, report = constrain(own, miss, pairs=pairs, donors=donors, segments=segments,
-                                  limits=limits)
+            G, _ = constrain(own, miss, pairs=pairs, donors=donors, segments=segments,
+                             limits=limits)
         G = G.astype(dtype, copy=False)
         np.copyto(G, own, where=~np.isfinite(G))    # the candidate's own value where left NaN
-        return G, report
-    done = list(thread_map(one, fills))
-    if done[-1][1].rigid_done is not None:
-        donor = torch.as_tensor(done[-1][1].rigid_done, device=missing.device)
-    return torch.from_numpy(np.stack([G for G, _ in done])).to(fills.device), donor
+        return torch.from_numpy(G).to(F.device)
+    return one, donor
+
+
+@dataclass(frozen=True)
+class CandidatePost:
+    """``auto``'s ``post`` fit data, as ``fill()`` passes it: :func:`constrain_candidates` with
+    the recording's ``segments``, and :meth:`prepare` (:func:`prepare_candidates`) to constrain
+    each candidate as its fit ends."""
+
+    segments: dict | None = None
+
+    def __call__(self, fills: torch.Tensor, missing: torch.Tensor):
+        return constrain_candidates(fills, missing, self.segments)
+
+    def prepare(self, observed: torch.Tensor, missing: torch.Tensor):
+        return prepare_candidates(observed, missing, self.segments)

@@ -4,7 +4,6 @@ contract only (the registry, declared hyperparameters and fit data); the options
 :class:`torchfill.options.FillOptions`."""
 from __future__ import annotations
 
-import functools
 import inspect
 import threading
 import time
@@ -16,7 +15,7 @@ import numpy as np
 import torch
 
 from . import unfilled, windows
-from .constraints import constrain, constrain_candidates, meet_kept
+from .constraints import CandidatePost, constrain, meet_kept
 from .options import DEFAULT_METHODS, OPTIONS_DOC, FillOptions, default_method, work_dtype
 from .runtime.cache import clear_all as clear_kept
 from .runtime.memory import trim_heap
@@ -239,7 +238,7 @@ def _fit_data(case: _Case, o: FillOptions, keep: torch.Tensor) -> dict:
     if kept_segments is not None and "segments" in takes:
         extra["segments"] = kept_segments
     if o.constraints and "post" in takes:                 # auto scores fills as they come out
-        extra["post"] = functools.partial(constrain_candidates, segments=kept_segments)
+        extra["post"] = CandidatePost(kept_segments)
     if case.training is not None:
         extra["training"] = [t.to(case.work or t.dtype) for t in align_training(
             case.training, case.data, keep.tolist(), case.points.shape[1])]

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .constraints import constrain_candidates
+from .constraints import CandidatePost
 from .metrics import gap_runs
 from .options import WINDOW
 from .runtime.cache import clear_all
@@ -301,7 +301,7 @@ def fit(job: Job, X: torch.Tensor, missing: torch.Tensor, key: tuple[int, int], 
     est = getattr(solver, "std_", None)
     if est is None and job.return_std:
         est = holdout_std(job.method, {**job.params, **carry}, X, missing, seed=solver.seed,
-                          post=constrain_candidates if job.constraints else None, **job.extra)
+                          post=CandidatePost() if job.constraints else None, **job.extra)
     return Solved(filled, None if est is None else est.to(filled.dtype),
                   getattr(solver, "anchored_", None), solver.n_iter_, carry)
 

@@ -118,8 +118,9 @@ def test_the_pma_family_averages_its_hold_out_fit_and_refit_on_trial_end_kinds(m
     names = ["pma", "li", "lgrnn", "pchip"]
     held = torch.stack([torch.full((T, J, 3), float(c + 1), dtype=torch.float64)
                         for c in range(len(names))])
-    monkeypatch.setattr(Fits, "fit_all", lambda self, names, *a, **k: [
-        torch.full((T, J, 3), 10.0 * (c + 1), dtype=torch.float64) for c in range(len(names))])
+    monkeypatch.setattr(Fits, "fit_all", lambda self, names, *a, then, **k: [
+        then(name, torch.full((T, J, 3), 10.0 * (c + 1), dtype=torch.float64))
+        for c, name in enumerate(names)])
     out, _ = fits.refit(names, held, torch.ones(len(names), T, J, dtype=torch.float64), gaps, end)
     for c, name in enumerate(names):
         refit, kept = 10.0 * (c + 1), float(c + 1)
@@ -522,6 +523,56 @@ def test_tucker_tnn_of_each_draw_runs_on_beside_the_next_draws_with_the_same_bit
     assert len(behind) == 2
     assert np.array_equal(out.points, again.points, equal_nan=True)
     assert np.array_equal(np.asarray(std), np.asarray(std_again), equal_nan=True)
+
+
+def test_each_candidate_through_the_post_step_in_its_lane_gives_the_batched_bits(
+        recording, monkeypatch):
+    """Each candidate's fill goes through the post-step in its lane as its fit ends (the shared
+    part made once per mask): the fill and the error estimate are those of a post-step that
+    takes each fill alone through ``constrain_candidates`` (a ``post`` without ``prepare``),
+    bit for bit, and every round's fills went through it."""
+    from torchfill.constraints import CandidatePost, constrain_candidates
+
+    X = torch.as_tensor(_real(recording, "hdm05_bd_05-01_01_120.c3d", 600))
+    missing = torch.zeros(X.shape[:2], dtype=torch.bool)
+    missing[100:180, 3] = missing[:40, 7] = missing[300:340, 12] = True
+    X = torch.where(missing[..., None], float("nan"), X)
+    calls = []
+
+    def plain(fills, mask):
+        calls.append(int(mask.sum()))
+        return constrain_candidates(fills, mask)
+    torch.set_num_threads(2)                # two lanes (the tests' fixture restores the count)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lanes = get_solver("auto").fit(X, post=CandidatePost())
+        alone = get_solver("auto").fit(X, post=plain)
+    assert torch.equal(lanes.transform(X), alone.transform(X))
+    assert torch.equal(torch.nan_to_num(lanes.std_, -1.0), torch.nan_to_num(alone.std_, -1.0))
+    assert len(calls) >= len(alone.tried_) + 1        # the hold-out fits, then the refits
+    assert int(missing.sum()) in calls
+
+
+def test_prepared_post_step_is_the_post_step_of_each_fill_alone(recording):
+    """What ``prepare_candidates`` shares between fills (rigid pairs and donors, step limit,
+    volume) depends on the observed samples only: each fill through it is that fill through
+    ``constrain`` alone, bit for bit, and the donor samples are those ``constrain`` reports."""
+    from torchfill.constraints import constrain, prepare_candidates
+
+    P = _real(recording, "hdm05_bd_05-01_01_120.c3d", 600)
+    missing = np.zeros(P.shape[:2], dtype=bool)
+    missing[100:180, 3] = missing[:40, 7] = missing[300:340, 12] = True
+    rng = np.random.default_rng(0)
+    fills = [np.where(missing[..., None], P + rng.normal(0, s, P.shape), P) for s in (1, 20)]
+    one, donor = prepare_candidates(torch.as_tensor(fills[0]), torch.as_tensor(missing))
+    for F in fills:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            G, report = constrain(F, missing)
+        G = np.where(np.isfinite(G), G, F)
+        assert np.array_equal(one(torch.as_tensor(F)).numpy(), G)
+        assert np.array_equal(donor.numpy(), report.rigid_done)
+    assert donor.any()
 
 
 def test_a_first_fit_that_fails_in_the_background_is_dropped_as_one_that_fails_at_once(

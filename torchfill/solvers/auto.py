@@ -223,16 +223,14 @@ class Auto(OneShotSolver):
         V = draws.holdout(seen, self.generator_)
         fit_missing = ~seen | V
         names, fills, running = self._run(self.tried_, fit_missing, INTERIOR)
-        done = [c for c in range(len(names)) if c not in running]
-        fills[done], donor = self._fits.constrain(fills[done], fit_missing)  # rigid-donor samples
+        donor = self._fits.post(fit_missing).donor                  # rigid-donor samples
         Xt = self.M_.reshape(self.M_.shape[0], self.M_.shape[1], -1)
         kinds = sample_kinds([n in PARTIAL for n in names], fills, fit_missing, Xt)[-1]
         first, err2 = draws.first_scores(fills, donor, kinds, Xt, V)
         pooled = draws.pooled(first, self._fits, names, seen, V, self.generator_, self.draws,
                               self.min_gaps)
         names, fills, err2, pooled = draws.settle_first(self._fits, names, fills, err2, pooled,
-                                                        running, fit_missing, V, donor,
-                                                        self.dropped_)
+                                                        running, V, donor, self.dropped_)
         self._some_left(names)
         W = self._weights(names, seen, pooled, fills.dtype)
         if self.refit and bool(V.any()):
@@ -316,7 +314,8 @@ class Auto(OneShotSolver):
         self.scores_ = dict(c["scores"])
         self.error_model_ = c["error_model"]
         use = [i for i in range(len(c["names"])) if bool((W[:, i] > 0).any())]
-        outs = list(self._fits.fit_all([c["names"][i] for i in use], gaps, "refit"))
+        outs = list(self._fits.fit_all([c["names"][i] for i in use], gaps, "refit",
+                                       then=self._fits.constrained(gaps)))
         for i, out in zip(list(use), outs):
             if isinstance(out, Exception):
                 self.dropped_[c["names"][i]] = str(out)
@@ -329,9 +328,8 @@ class Auto(OneShotSolver):
         for k in torch.nonzero(W.sum(dim=1) <= 0).flatten().tolist():
             ok = [n not in PARTIAL or k >= N_BASE for n in names]
             W[k, int(torch.where(torch.tensor(ok, device=W.device), mse, torch.inf).argmin())] = 1.0
-        fitted = torch.stack([out for out in outs if not isinstance(out, Exception)])
-        fills, donor = self._fits.constrain(fitted, gaps)
-        return names, fills, donor, W, mse
+        fills = torch.stack([out for out in outs if not isinstance(out, Exception)])
+        return names, fills, self._fits.post(gaps).donor, W, mse
 
     def carry(self) -> dict:
         """The choice (candidates, weights per gap kind, error model): the next windows of the

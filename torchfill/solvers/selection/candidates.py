@@ -49,6 +49,8 @@ ALONE = ("lgrnn", "pca_gloersen")
 #: side by side (:func:`torchfill.runtime.threads.thread_map`'s ``cost``); a ``+session`` twin as its method.
 COST = {"tucker_tnn": 8.0, "rigid": 4.0, "pma": 4.0, "pchip": 0.3, "spline": 0.3,
         "pca_gloersen": 0.3}
+#: ``COST`` of a refit where it differs: ``tucker_tnn``'s starts from its hold-out fit.
+REFIT_COST = {"tucker_tnn": 1.0}
 #: Candidates whose trial-end fills swing with the samples they see: there the final fill is the
 #: mean of their hold-out fit and refit (experiments/results/auto.md).
 END_AVERAGE = ("li", "lgrnn", "pma")
@@ -56,9 +58,12 @@ END_AVERAGE = ("li", "lgrnn", "pma")
 FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 
 
-def cost(name: str) -> float:
-    """A candidate's relative time (``COST``; a ``+session`` twin as its method)."""
-    return COST.get(name.removesuffix(SESSION), 1.0)
+def cost(name: str, stage: str = "fit") -> float:
+    """A candidate's relative time in a round of ``stage`` (``COST``, ``REFIT_COST``; a
+    ``+session`` twin as its method)."""
+    method = name.removesuffix(SESSION)
+    return REFIT_COST.get(method, COST.get(method, 1.0)) if stage == "refit" else \
+        COST.get(method, 1.0)
 
 
 def default_names(Omega: Tensor | None, training: bool) -> list[str]:
@@ -97,6 +102,42 @@ def end_shift(F: Tensor, missing: Tensor) -> Tensor:
     return F
 
 
+class Post:
+    """The post-step ``fill()`` passes as ``post`` fit data for one mask ``missing`` (T, J) of the
+    observed ``M`` (T, J, D), one candidate's fill at a time (in its lane, as its fit ends):
+    what the candidates share (``post.prepare``, see
+    :func:`torchfill.constraints.prepare_candidates`) is made once, by the first fill that needs
+    it. A ``post`` without ``prepare`` takes each fill alone; without a post-step, fills pass
+    unchanged. ``donor``: the (T, J) samples rigid donors fill, once a fill went through."""
+
+    def __init__(self, post: Callable | None, M: Tensor, missing: Tensor) -> None:
+        self.post, self.M, self.missing = post, M, missing
+        self.donor = torch.zeros_like(missing)
+        self._one: Callable | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self, F: Tensor) -> Tensor:
+        if self.post is None:
+            return F
+        with self._lock:
+            if self._one is None:
+                self._one, donor = self._prepare()
+                self.donor = donor if donor is not None else self.donor
+        with warnings.catch_warnings():     # the candidates' post-step speaks to no one: the
+            warnings.simplefilter("ignore")  # final fill's own post-step warns the user once
+            return self._one(F)
+
+    def _prepare(self) -> tuple[Callable, Tensor | None]:
+        prepare = getattr(self.post, "prepare", None)
+        if prepare is not None:
+            return prepare(self.M, self.missing)
+
+        def alone(F: Tensor) -> Tensor:
+            G, self.donor = self.post(F[None], self.missing)
+            return G[0]
+        return alone, None
+
+
 class Fits:
     """The candidates' fits of one recording ``M`` (the solver's normalized data, (T, J*D) or
     (T, J, D)) with ``mu`` / ``sigma`` its normalization, the solver's ``fit_data``, ``seed``,
@@ -113,6 +154,8 @@ class Fits:
         self.warm: dict[str, tuple] = {}        # each candidate's first fit's warm_start()
         self.lanes: Lanes | None = None         # worker threads kept open (:meth:`open_lanes`)
         self.first: dict[str, Future] = {}      # first fits left running (``behind``)
+        self._posts: dict[bytes, Post] = {}     # the rounds' post-steps, by mask
+        self._post_lock = threading.Lock()
 
     def open_lanes(self) -> Lanes:
         """Worker threads for the fits of this recording (one on a GPU), kept open across the
@@ -175,7 +218,8 @@ class Fits:
             trim_heap(self.M.element_size() * self.M.numel())
 
     def fit_all(self, names: list[str], fit_missing: Tensor, stage: str = "fit",
-                case: tuple | None = None, behind: tuple = ()) -> Iterator:
+                case: tuple | None = None, behind: tuple = (),
+                then: Callable[[str, Tensor], Tensor] | None = None) -> Iterator:
         """:meth:`attempt` for each name, in order; on CPU in threads (``runtime.threads``: in
         the open lanes, else for this call alone), the costliest first. Each finished fit is
         reported: ``{stage}=k``, ``{stage}s=n`` (``fit``/``fits`` on the hold-out,
@@ -183,20 +227,23 @@ class Fits:
         lanes (:meth:`in_lanes`), the names in ``behind`` are not waited for: their place holds
         the :class:`~concurrent.futures.Future` of their fit, which runs on in the background; a
         later fit of a candidate whose first fit runs so starts when that ends (it reads what the
-        first carries, :meth:`Solver.carry`)."""
+        first carries, :meth:`Solver.carry`). ``then(name, fill)``: what a fit's fill becomes
+        in its lane as it ends (the post-step: :meth:`post`)."""
         lock, done = threading.Lock(), [0]
 
         def attempt(name: str):
             out = self.attempt(name, fit_missing, case, stage)
+            if then is not None and not isinstance(out, Exception):
+                out = then(name, out)
             with lock:
                 done[0] += 1
                 self.report({stage: float(done[0]), f"{stage}s": float(len(names))})
             return out
         if not self.in_lanes(len(names)):
             workers = None if self.M.device.type == "cpu" else 1
-            return thread_map(attempt, names, workers, cost=cost)
+            return thread_map(attempt, names, workers, cost=lambda name: cost(name, stage))
         futures = {i: self._submit(attempt, names[i])
-                   for i in sorted(range(len(names)), key=lambda i: -cost(names[i]))}
+                   for i in sorted(range(len(names)), key=lambda i: -cost(names[i], stage))}
         if stage == "fit" and case is None:
             self.first.update({names[i]: f for i, f in futures.items() if names[i] in behind})
         return (futures.pop(i) if names[i] in behind else futures.pop(i).result()
@@ -210,28 +257,32 @@ class Fits:
             return self.lanes.submit(attempt, name)
         return after(first, self.lanes, attempt, name)
 
-    def constrain(self, fills: Tensor, missing: Tensor) -> tuple[Tensor, Tensor]:
-        """Each candidate's fill (C, T, J, D) after the post-step given as ``post`` fit data
-        (``fill()`` passes :func:`torchfill.constraints.constrain_candidates` when its constraints
-        are on), and the (T, J) samples that rigid donors fill there. Unchanged, with no donors,
-        without a post-step."""
-        post = self.fit_data.get("post")
-        if post is None or fills.shape[0] == 0:
-            return fills, torch.zeros_like(missing)
-        with warnings.catch_warnings():     # the candidates' post-step speaks to no one: the
-            warnings.simplefilter("ignore")  # final fill's own post-step warns the user once
-            out = post(fills, missing)
-        trim_heap(self.M.element_size() * self.M.numel())
-        return out
+    def post(self, missing: Tensor) -> Post:
+        """The post-step of a fill with ``missing`` (T, J) hidden (:class:`Post`), kept for the
+        masks of this recording's rounds (their shared part is made once)."""
+        key = missing.cpu().numpy().tobytes()
+        with self._post_lock:
+            if key not in self._posts:
+                Xt = self.M.reshape(*missing.shape, -1)
+                self._posts[key] = Post(self.fit_data.get("post"), Xt, missing)
+            return self._posts[key]
+
+    def constrained(self, missing: Tensor) -> Callable[[str, Tensor], Tensor]:
+        """``then`` for :meth:`fit_all`: a fit's fill with ``missing`` hidden through the
+        post-step."""
+        post = self.post(missing)
+        return lambda name, out: post(out)
 
     def run(self, names: list[str], fit_missing: Tensor, dropped: dict[str, str],
             behind: tuple = ()) -> tuple[list[str], list[Tensor | Future]]:
-        """Each candidate of ``names`` fitted once with ``fit_missing`` hidden: the names of those
-        that did not fail (the others' errors go to ``dropped``) and their fills (T, J, 3), the
+        """Each candidate of ``names`` fitted once with ``fit_missing`` hidden, through the
+        post-step (:meth:`constrained`): the names of those that did not fail (the others'
+        errors go to ``dropped``) and their fills (T, J, 3), the
         :class:`~concurrent.futures.Future` of those in ``behind`` still running (see
         :meth:`fit_all`)."""
         kept, fills = [], []
-        for name, out in zip(names, self.fit_all(names, fit_missing, behind=behind)):
+        then = self.constrained(fit_missing)
+        for name, out in zip(names, self.fit_all(names, fit_missing, behind=behind, then=then)):
             if isinstance(out, Exception):
                 dropped[name] = str(out)
                 continue
@@ -243,20 +294,21 @@ class Fits:
               end: Tensor) -> tuple[Tensor, Tensor]:
         """Fills of the real ``gaps`` from the candidates that carry weight there (``w`` (C, T,
         J)), refitted on all observed samples (the hold-out fit stays where the refit fails),
-        constrained like the hold-out fills; and the (T, J) samples that rigid donors fill. On
-        the samples of the trial-end kinds (``end``, (T, J)) a candidate of ``END_AVERAGE`` takes
-        the mean of its refit and its hold-out fill ``fills``."""
+        constrained like the hold-out fills (the held-out samples as observed); and the (T, J)
+        samples that rigid donors fill. On the samples of the trial-end kinds (``end``, (T, J))
+        a candidate of ``END_AVERAGE`` takes the mean of its refit and its hold-out fill
+        ``fills``."""
         fills = fills.clone()
         done = [c for c in range(len(names)) if bool((w[c][gaps] > 0).any())]
-        for c, out in zip(list(done), self.fit_all([names[c] for c in done], gaps, "refit")):
-            if isinstance(out, Exception):
-                done.remove(c)
-                continue
-            if names[c] in END_AVERAGE:
-                out = torch.where(end[..., None], 0.5 * (out + fills[c]), out)
-            fills[c] = torch.where(gaps[..., None], out, fills[c])
-        Xt = self.M.reshape(fills.shape[1:])
-        seen = torch.where(gaps[..., None], fills[done], Xt)   # held-out samples as observed
-        refits, donor = self.constrain(seen, gaps)
-        fills[done] = torch.where(gaps[..., None], refits, fills[done])
-        return fills, donor
+        Xt, post = self.M.reshape(fills.shape[1:]), self.post(gaps)
+
+        def then(name: str, out: Tensor) -> Tensor:
+            if name in END_AVERAGE:
+                out = torch.where(end[..., None], 0.5 * (out + fills[names.index(name)]), out)
+            return post(torch.where(gaps[..., None], out, Xt))
+        chosen = [names[c] for c in done]
+        for c, out in zip(done, self.fit_all(chosen, gaps, "refit", then=then)):
+            if not isinstance(out, Exception):
+                fills[c] = torch.where(gaps[..., None], out, fills[c])
+        trim_heap(self.M.element_size() * self.M.numel())
+        return fills, post.donor

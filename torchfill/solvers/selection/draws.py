@@ -47,7 +47,7 @@ def holdout(seen: Tensor, generator: torch.Generator) -> Tensor:
 def scored(fits: Fits, names: list[str], outs, missing: Tensor, Xt: Tensor, V: Tensor
            ) -> tuple[tuple[Tensor, Tensor, Tensor], Tensor, Tensor]:
     """The candidates' fits ``outs`` (in ``names``' order; an exception: the candidate
-    failed) of ``Xt`` (T, J, D) with ``missing`` hidden, through the post-step and scored on
+    failed) of ``Xt`` (T, J, D) with ``missing`` hidden, after the post-step, scored on
     the held-out samples ``V``: their squared errors (C, N), kinds (N,) and gap ids (N,) on
     the samples they fill themselves (not rigid donors); the squared errors on all of ``V``
     (C, N_V); and which of ``V``'s samples those are (N_V,). A failed candidate's errors are
@@ -57,8 +57,7 @@ def scored(fits: Fits, names: list[str], outs, missing: Tensor, Xt: Tensor, V: T
     for c, out in enumerate(outs):
         if not isinstance(out, Exception):
             fills[c] = out
-    ok = [c for c in range(C) if bool(torch.isfinite(fills[c]).any())]
-    fills[ok], donor = fits.constrain(fills[ok], missing)
+    donor = fits.post(missing).donor
     kinds = sample_kinds([n in PARTIAL for n in names], fills, missing, Xt)[-1]
     err2 = ((fills - Xt) ** 2).mean(dim=3)[:, V]
     decide = ~donor[V]
@@ -88,39 +87,39 @@ def draw(fits: Fits, names: list[str], seen: Tensor, V0: Tensor, generator: torc
     fit_missing = ~seen | V
     Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
     run = [name for name in names if not name.endswith(SESSION) and name not in skip]
-    fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw", behind=behind)))
+    fitted = dict(zip(run, fits.fit_all(run, fit_missing, "draw", behind=behind,
+                                        then=fits.constrained(fit_missing))))
     pending = [(names.index(n), out) for n, out in fitted.items() if isinstance(out, Future)]
     outs = [NOT_DRAWN if isinstance(out, Future) else out
             for out in (fitted.get(name, NOT_DRAWN) for name in names)]
     scores, _, decide = scored(fits, names, outs, fit_missing, Xt, V)
-    return scores, [(c, future, fit_missing, V, decide) for c, future in pending]
+    return scores, [(c, future, V, decide) for c, future in pending]
 
 
 def settle(fits: Fits, err2: Tensor, pending: list) -> None:
-    """The fits :func:`draw` left running, each through the post-step and scored into its row
-    of that draw's squared errors ``err2`` (C, N) as :func:`scored` scores it (a failed one
-    stays NaN)."""
-    for c, future, missing, V, decide in pending:
+    """The fits :func:`draw` left running (through the post-step in their lane), each scored
+    into its row of that draw's squared errors ``err2`` (C, N) as :func:`scored` scores it (a
+    failed one stays NaN)."""
+    for c, future, V, decide in pending:
         out = future.result()
         if isinstance(out, Exception) or not bool(torch.isfinite(out).any()):
             continue
-        err2[c] = alone(fits, out, missing, V)[1][decide]
+        err2[c] = alone(fits, out, V)[decide]
 
 
-def alone(fits: Fits, out: Tensor, missing: Tensor, V: Tensor) -> tuple[Tensor, Tensor]:
-    """One candidate's fill ``out`` (T, J, D) with ``missing`` hidden through the post-step, and
-    its squared errors on the held-out samples ``V`` (N_V,), as :func:`scored` scores it."""
+def alone(fits: Fits, F: Tensor, V: Tensor) -> Tensor:
+    """One candidate's constrained fill ``F`` (T, J, D): its squared errors on the held-out
+    samples ``V`` (N_V,), as :func:`scored` scores them."""
     Xt = fits.M.reshape(fits.M.shape[0], fits.M.shape[1], -1)
-    F = fits.constrain(out.to(fits.M.dtype)[None], missing)[0][0]
-    return F, ((F - Xt) ** 2).mean(dim=2)[V]
+    return ((F - Xt) ** 2).mean(dim=2)[V]
 
 
 def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pooled: tuple,
-                 running: dict[int, Future], missing: Tensor, V: Tensor, donor: Tensor,
+                 running: dict[int, Future], V: Tensor, donor: Tensor,
                  dropped: dict[str, str]) -> tuple[list[str], Tensor, Tensor, tuple]:
     """The first draw's fits left running (``running``: candidate index -> future; the
     ``INTERIOR`` ones run on while the others are scored and the next draws made, if any),
-    each through the post-step into its row of the draw's ``fills`` (C, T, J, D) and squared
+    each (through the post-step in its lane) into its row of the draw's ``fills`` (C, T, J, D) and squared
     errors ``err2`` (C, N_V) and of the ``pooled`` errors (the first draw's columns come
     first), as :func:`first_scores` scores them. A failed one leaves every row (its error goes
     to ``dropped``)."""
@@ -133,7 +132,7 @@ def settle_first(fits: Fits, names: list[str], fills: Tensor, err2: Tensor, pool
             dropped[names[c]] = str(out)
             failed.append(c)
             continue
-        fills[c], err2[c] = alone(fits, out, missing, V)
+        fills[c], err2[c] = out, alone(fits, out, V)
         E[c, :int(decide.sum())] = err2[c][decide]
     if not failed:
         return names, fills, err2, pooled
