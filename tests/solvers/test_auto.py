@@ -363,6 +363,55 @@ def test_a_partial_candidate_does_not_win_its_kinds_on_the_others_parents():
     assert torch.equal(within[:2], over_all[:2])          # the other kinds as before
 
 
+def test_the_error_model_holds_each_feature_within_the_hold_outs_range():
+    """A real gap standing still where every held-out gap moved (a trial end at rest): the
+    log-linear model, fitted with an error that falls as the motion grows, is not extrapolated
+    to the lower motion -- the gap gets the estimate of the slowest held-out motion, not one
+    that explodes; inside the range the fit is read as it is."""
+    from torchfill.solvers.selection.error_model import fit_std
+
+    g = torch.Generator().manual_seed(0)
+    T, J = 400, 2
+    seen = torch.ones(T, J, dtype=torch.bool)
+    seen[:3, 0] = seen[200:203, 0] = False          # real gaps: at rest, and in motion
+    V = torch.zeros_like(seen)
+    V[20:380, 1] = True
+    motion = torch.ones(T, J, dtype=torch.float64)
+    motion[:, 1] = 1.0 + torch.rand(T, generator=g, dtype=torch.float64)   # held out: 1-2
+    motion[:3, 0] = 0.01
+    motion[200:203, 0] = 1.5
+    one = torch.ones(T, J, dtype=torch.float64)
+    noise = torch.exp(0.1 * torch.randn(T, J, generator=g, dtype=torch.float64))
+    e2 = motion ** -2.0 * noise                     # the error falls with the motion
+    features = (one, one, torch.zeros_like(seen), one * 0.5, one * 1e-4, one * 1e-4, one * 1e-4,
+                motion, torch.zeros_like(seen), one * 1e-4)
+    model, std = fit_std(V, seen, features, e2, None, torch.ones((), dtype=torch.float64))
+    slowest = float(motion[V].min())
+    at_rest, moving = float(std[0, 0]), float(std[200, 0])
+    assert at_rest == pytest.approx(slowest ** -1.0, rel=0.1)       # not 0.01 ** -1 = 100
+    assert moving == pytest.approx(1.5 ** -1.0, rel=0.1)
+    _, again = fit_std(torch.zeros_like(V), seen, features, e2, model,
+                       torch.ones((), dtype=torch.float64))   # an earlier window's model
+    assert torch.equal(torch.nan_to_num(again), torch.nan_to_num(std))
+
+
+def test_the_mixture_spread_counts_only_the_candidates_the_fill_weighs():
+    """``mix2``: the candidates' spread around the combined fill by the weights that make it;
+    a stray candidate with no weight there adds nothing, one with weight adds its share."""
+    from torchfill.solvers.selection.error_model import mix2
+
+    fills = torch.zeros(3, 4, 2, 3, dtype=torch.float64)
+    fills[1] += 2.0
+    fills[2] += 100.0                                   # stray
+    w = torch.zeros(3, 4, 2, dtype=torch.float64)
+    w[0], w[1] = 0.5, 0.5
+    mean = (w[..., None] * fills).sum(dim=0)
+    assert torch.allclose(mix2(fills, mean, w), torch.ones(4, 2, dtype=torch.float64))
+    w[2, 0, 0], w[0, 0, 0] = 0.5, 0.0
+    mean = (w[..., None] * fills).sum(dim=0)
+    assert float(mix2(fills, mean, w)[0, 0]) == pytest.approx(49.0 ** 2)
+
+
 def test_a_marker_never_seen_twice_in_a_row_has_the_median_speed_not_zero():
     """The error model's speed feature: the mean squared step where a marker is seen in two
     consecutive frames; a marker never seen so takes the other markers' median (unknown, not 0:

@@ -46,7 +46,7 @@ from .selection import draws
 from .selection.candidates import (DEFAULT_CANDIDATES, INTERIOR, PARTIAL, SESSION,  # noqa: F401
                                    Fits, default_names)
 from .selection.cross import cross_holdout
-from .selection.error_model import fit_std, sample_features
+from .selection.error_model import fit_std, mix2, sample_features
 from .selection.kinds import N_BASE, N_KINDS, kind_name, sample_kinds
 from .selection.weights import consensus, join_holes, kind_mse, kind_weights, mse_weights
 
@@ -290,7 +290,8 @@ class Auto(OneShotSolver):
                          for k in range(N_KINDS)}
         segment = kinds >= N_BASE                   # a partial (segment) candidate fills it
         self.error_model_, self.std_ = fit_std(
-            V, seen, (d, L, edge, share, spread2, bend2, speed2, motion, donor | segment),
+            V, seen, (d, L, edge, share, spread2, bend2, speed2, motion, donor | segment,
+                      mix2(fills, mean, w)),
             ((mean - Xt) ** 2).mean(dim=2), self.error_model_, self.sigma_)
         est = torch.where(fit_missing[..., None], mean, Xt).reshape(self.M_.shape)
         self.X_ = torch.where(self.Omega_, self.M_, est)

@@ -1,10 +1,13 @@
 """The error estimate ``std_`` of the default's fill: a log-linear model of the held-out squared
 error of the combined fill on features of each sample (distance to the nearest observed frame,
-gap length, trial end, share of markers missing in the frame, the candidates' disagreement, the
-fill's departure from linear interpolation, the marker's observed speed, the gap's frame motion,
-rigid donors), fitted on the held-out samples, scaled so that the mean ratio of squared error to
-estimated variance there is 1, and grown in proportion to the motion beyond the 90th percentile
-of the hold-out's motion (which the fit cannot see). Calibration: docs/real-gaps.md."""
+gap length, trial end, share of markers missing in the frame, the candidates' disagreement, their
+spread around the fill by the weights that make it, the fill's departure from linear
+interpolation, the marker's observed speed, the gap's frame motion, rigid donors), fitted on the
+held-out samples, scaled so that the mean ratio of squared error to estimated variance there is 1,
+and grown in proportion to the motion beyond the 90th percentile of the hold-out's motion (which
+the fit cannot see). On the real gaps each feature is held within the range the hold-out spans: a
+log-linear fit does not extrapolate (a trial end standing still is not a hold-out gap in motion,
+experiments/results/qc.md). Calibration: docs/real-gaps.md."""
 from __future__ import annotations
 
 import torch
@@ -14,14 +17,21 @@ from ... import ops
 Tensor = torch.Tensor
 
 
+#: Columns of :func:`error_features` that are counts or 0/1 (the intercept, trial end, donor):
+#: not held within the hold-out's range.
+DISCRETE = (0, 3, 9)
+
+
 def error_features(d: Tensor, L: Tensor, edge: Tensor, share: Tensor, spread2: Tensor,
-                   bend2: Tensor, speed2: Tensor, motion: Tensor, donor: Tensor) -> Tensor:
-    """Design matrix (..., 10) of the log-linear error model (see the module notes)."""
+                   bend2: Tensor, speed2: Tensor, motion: Tensor, donor: Tensor,
+                   mix2: Tensor) -> Tensor:
+    """Design matrix (..., 11) of the log-linear error model (see the module notes)."""
     dtype = spread2.dtype
     return torch.stack([torch.ones_like(spread2), torch.log(d.to(dtype)), torch.log(L.to(dtype)),
                         edge.to(dtype), torch.log(share.to(dtype)), torch.log(spread2 + 1e-8),
                         torch.log(bend2 + 1e-8), torch.log(speed2 + 1e-8),
-                        torch.log(motion + 1e-3), donor.to(dtype)], dim=-1)
+                        torch.log(motion + 1e-3), donor.to(dtype), torch.log(mix2 + 1e-8)],
+                       dim=-1)
 
 
 def fit_error_model(F: Tensor, e2: Tensor, ridge: float = 1e-3) -> tuple[Tensor, float]:
@@ -54,6 +64,13 @@ def spread2(fills: Tensor, mean: Tensor, mse: Tensor) -> Tensor:
     return (v * (fills - mean) ** 2).sum(dim=0).mean(dim=2)
 
 
+def mix2(fills: Tensor, mean: Tensor, w: Tensor) -> Tensor:
+    """(T, J) spread of the candidates' ``fills`` (C, T, J, D) around the combined fill ``mean``
+    by the weights ``w`` (C, T, J) that make it: the variance of the mixture the fill is the mean
+    of (the candidates it leaves out do not count)."""
+    return (w * ((fills - mean) ** 2).mean(dim=3)).sum(dim=0)
+
+
 def sample_features(fills: Tensor, mean: Tensor, mse: Tensor, missing: Tensor, Xt: Tensor
                     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Per (T, J) sample: the share of markers ``missing`` in its frame, the candidates'
@@ -74,20 +91,26 @@ def fit_std(V: Tensor, seen: Tensor, features: tuple, e2: Tensor, model: tuple |
             sigma: Tensor) -> tuple[tuple | None, Tensor]:
     """The error model fitted on the held-out samples ``V`` (T, J) with squared errors ``e2``
     (else ``model``, an earlier window's, or None), and the std (T, J) it predicts on the real
-    gaps (``~seen``; NaN elsewhere), in the data's units (``sigma``). ``features``: ``d, L,
-    edge, share, spread2, bend2, speed2, motion, donor`` per sample. Returns (model, std)."""
+    gaps (``~seen``; NaN elsewhere), in the data's units (``sigma``), each feature held within
+    the range of its held-out values. ``features``: ``d, L, edge, share, spread2, bend2, speed2,
+    motion, donor, mix2`` per sample. Returns (model, std)."""
     gaps = ~seen
-    d, L, edge, share, s2, bend2, sp2, motion, donor = features
+    d, L, edge, share, s2, bend2, sp2, motion, donor, m2 = features
     F_all = error_features(d.clamp(min=1), L.clamp(min=1), edge, share.clamp(min=1e-3),
-                           s2, bend2, sp2, motion, donor)
+                           s2, bend2, sp2, motion, donor, m2)
     if int(V.sum()) >= 10:
         beta, log_scale = fit_error_model(F_all[V], e2[V])
         high = float(torch.quantile(motion[V], 0.9).clamp(min=1e-12))
-        model = (beta.tolist(), log_scale, high)
+        lo, hi = F_all[V].min(dim=0).values, F_all[V].max(dim=0).values
+        model = (beta.tolist(), log_scale, high, lo.tolist(), hi.tolist())
     if model is not None:                     # fitted here, or an earlier window's
-        beta, log_scale, high = model
-        beta = torch.tensor(beta, dtype=F_all.dtype, device=F_all.device)
-        var = torch.exp(F_all[gaps] @ beta + log_scale)
+        beta, log_scale, high, lo, hi = (torch.tensor(v, dtype=F_all.dtype, device=F_all.device)
+                                         if isinstance(v, list) else v for v in model)
+        held = torch.ones_like(lo, dtype=torch.bool)
+        held[list(DISCRETE)] = False
+        F = F_all[gaps]
+        F = torch.where(held, torch.minimum(torch.maximum(F, lo), hi), F)   # no extrapolation
+        var = torch.exp(F @ beta + log_scale)
         # beyond the motion the hold-out saw, the error grows with the motion (not fitted)
         var = var * (motion[gaps] / high).clamp(min=1.0)
     else:                                            # no hold-out: spread of the candidates
