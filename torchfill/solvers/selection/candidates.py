@@ -61,9 +61,8 @@ FAILURES = (ValueError, RuntimeError, torch.linalg.LinAlgError)
 def cost(name: str, stage: str = "fit") -> float:
     """A candidate's relative time in a round of ``stage`` (``COST``, ``REFIT_COST``; a
     ``+session`` twin as its method)."""
-    method = name.removesuffix(SESSION)
-    return REFIT_COST.get(method, COST.get(method, 1.0)) if stage == "refit" else \
-        COST.get(method, 1.0)
+    table = {**COST, **REFIT_COST} if stage == "refit" else COST
+    return table.get(name.removesuffix(SESSION), 1.0)
 
 
 def default_names(Omega: Tensor | None, training: bool) -> list[str]:
